@@ -1,0 +1,343 @@
+"""Run independent jobs (closed loops, identifications...) in parallel with a progress bar.
+
+One helper, three back ends, the same results:
+
+* ``workers=1``: in this process, one after the other (no pool; easiest to debug).
+* ``workers=N`` (default ``os.cpu_count()``): a :class:`concurrent.futures.ProcessPoolExecutor`
+  with the ``"forkserver"`` start method (``"spawn"`` where forkserver does not exist). Plain
+  ``fork`` is avoided on purpose: pydrake starts threads and holds native state that a forked
+  child may inherit half-initialised.
+* ``scheduler="tcp://host:8786"`` or a ``distributed.Client``: Dask distributed
+  (``client.submit`` + ``as_completed``). We never schedule anything ourselves.
+
+Every item runs ``func(item)``; ``func`` must be a module-level (picklable) function and the
+items picklable. An item whose ``func`` raises becomes ``RunOutcome(ok=False, error=...)``
+and the others continue. A worker process that dies (segfault, ``kill -9``, out of memory)
+costs only the items running on it at that moment: they are retried once on a fresh pool and
+recorded as failed if they die again. At most ``workers`` items are in flight, so a crash or
+Ctrl-C loses at most those.
+
+>>> import math
+>>> from robust_drake.parallel import run_parallel
+>>> outcomes = run_parallel(math.sqrt, [1.0, 4.0, -1.0], workers=1, progress=False)
+>>> [o.value for o in outcomes if o.ok]
+[1.0, 2.0]
+
+``run_parallel(..., stream=True)`` (or :func:`iter_parallel`) yields outcomes in completion
+order, which is what a caller writing results incrementally wants.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+import pickle
+import sys
+import time
+import traceback
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import dataclass
+from typing import Any, Callable, Iterable, Iterator, Sequence
+
+from robust_drake.errors import RobustDrakeError
+
+__all__ = ["RunOutcome", "run_parallel", "iter_parallel", "default_workers", "mp_context"]
+
+#: Start method for local worker processes. "forkserver" is measurably cheaper than "spawn"
+#: when the forkserver preloads pydrake (see BUILD_NOTES "Batch and Monte Carlo").
+START_METHOD = "forkserver" if "forkserver" in multiprocessing.get_all_start_methods() else "spawn"
+
+#: Modules imported once in the fork server so every worker starts with them loaded.
+FORKSERVER_PRELOAD = ["numpy", "pydrake.all"]
+
+
+@dataclass
+class RunOutcome:
+    """What happened to one item.
+
+    ``error`` is a one-line summary ``"ExcType: message (at file.py:123 in func)"``;
+    ``traceback`` holds the full formatted traceback (``None`` when ok).
+    """
+
+    key: Any
+    ok: bool
+    value: Any = None
+    error: str | None = None
+    wall_seconds: float = 0.0
+    traceback: str | None = None
+
+
+def default_workers() -> int:
+    """Number of local worker processes used when ``workers`` is not given."""
+    return max(1, os.cpu_count() or 1)
+
+
+def mp_context(method: str | None = None):
+    """The multiprocessing context for local pools (forkserver preloading pydrake, or spawn)."""
+    method = method or START_METHOD
+    ctx = multiprocessing.get_context(method)
+    if method == "forkserver":
+        # Only takes effect when the fork server starts (first pool in this process).
+        ctx.set_forkserver_preload(FORKSERVER_PRELOAD)
+    return ctx
+
+
+def _summarise(exc: BaseException) -> tuple[str, str]:
+    """(one-line summary with the innermost frame, full traceback text)."""
+    tb = traceback.extract_tb(exc.__traceback__)
+    where = ""
+    if tb:
+        frame = tb[-1]
+        where = f" (at {os.path.basename(frame.filename)}:{frame.lineno} in {frame.name})"
+    msg = str(exc).strip().splitlines()
+    first = msg[0] if msg else ""
+    if len(msg) > 1:
+        first += " ..."
+    full = "".join(traceback.format_exception(type(exc), exc, exc.__traceback__))
+    return f"{type(exc).__name__}: {first}{where}", full
+
+
+def _call(func: Callable, item: Any) -> tuple[bool, Any, str | None, str | None, float]:
+    """Run ``func(item)`` and catch its exceptions (executed in the worker)."""
+    t0 = time.perf_counter()
+    try:
+        value = func(item)
+    except Exception as exc:  # noqa: BLE001 - reported, never swallowed silently
+        summary, full = _summarise(exc)
+        return False, None, summary, full, time.perf_counter() - t0
+    return True, value, None, None, time.perf_counter() - t0
+
+
+def _outcome(key, packed) -> RunOutcome:
+    ok, value, error, tb, wall = packed
+    return RunOutcome(key=key, ok=ok, value=value, error=error, wall_seconds=wall, traceback=tb)
+
+
+def _failed(key, exc: BaseException, wall: float = 0.0) -> RunOutcome:
+    summary, full = _summarise(exc)
+    return RunOutcome(key=key, ok=False, error=summary, wall_seconds=wall, traceback=full)
+
+
+def _make_bar(total: int, desc: str, progress: bool):
+    from tqdm.auto import tqdm
+
+    disable = (not progress) or not (hasattr(sys.stderr, "isatty") and sys.stderr.isatty())
+    return tqdm(total=total, desc=desc, unit="run", file=sys.stderr, disable=disable,
+                dynamic_ncols=True, smoothing=0.1)
+
+
+def _check_picklable(func, items) -> None:
+    try:
+        pickle.dumps(func)
+    except Exception as exc:
+        raise RobustDrakeError(
+            f"run_parallel: {func!r} cannot be sent to worker processes ({exc}); "
+            "use a module-level function (not a lambda or a local function), or workers=1"
+        ) from exc
+    if items:
+        try:
+            pickle.dumps(items[0])
+        except Exception as exc:
+            raise RobustDrakeError(
+                f"run_parallel: the items cannot be pickled ({exc}); pass plain data "
+                "(dicts, dataclasses of numbers/strings/arrays), or workers=1"
+            ) from exc
+
+
+def iter_parallel(
+    func: Callable[[Any], Any],
+    items: Iterable[Any],
+    *,
+    keys: Sequence[Any] | None = None,
+    workers: int | None = None,
+    desc: str = "runs",
+    progress: bool = True,
+    scheduler: Any = None,
+    start_method: str | None = None,
+) -> Iterator[RunOutcome]:
+    """Yield a :class:`RunOutcome` for each item, in completion order.
+
+    Parameters are those of :func:`run_parallel`. Breaking out of the loop (or Ctrl-C)
+    cancels the items not started yet.
+    """
+    for _, outcome in _iter_indexed(func, items, keys, workers, desc, progress, scheduler,
+                                    start_method):
+        yield outcome
+
+
+def run_parallel(
+    func: Callable[[Any], Any],
+    items: Iterable[Any],
+    *,
+    keys: Sequence[Any] | None = None,
+    workers: int | None = None,
+    desc: str = "runs",
+    progress: bool = True,
+    scheduler: Any = None,
+    stream: bool = False,
+    start_method: str | None = None,
+) -> list[RunOutcome] | Iterator[RunOutcome]:
+    """Run ``func(item)`` for every item, in parallel; never raises because of one item.
+
+    Parameters
+    ----------
+    func : module-level function of one argument (picklable).
+    items : the arguments (picklable).
+    keys : one label per item for the outcomes (default: the item's index).
+    workers : local worker processes; default ``os.cpu_count()``; ``1`` runs in this process.
+    desc : progress bar label.
+    progress : show a tqdm bar on stderr (only when stderr is a terminal).
+    scheduler : ``None`` (local), a Dask scheduler address ``"tcp://host:port"`` or a
+        ``distributed.Client``; then ``workers`` is ignored (the cluster decides).
+    stream : if True return an iterator yielding outcomes as they complete; otherwise a list
+        in the order of ``items``.
+    start_method : override ``"forkserver"``/``"spawn"`` for the local pool.
+
+    Returns
+    -------
+    list of :class:`RunOutcome` (input order) or an iterator (completion order).
+    """
+    if stream:
+        return iter_parallel(func, items, keys=keys, workers=workers, desc=desc,
+                             progress=progress, scheduler=scheduler, start_method=start_method)
+    indexed = list(_iter_indexed(func, items, keys, workers, desc, progress, scheduler,
+                                 start_method))
+    indexed.sort(key=lambda pair: pair[0])
+    return [outcome for _, outcome in indexed]
+
+
+def _iter_indexed(func, items, keys, workers, desc, progress, scheduler, start_method):
+    """Yield (input index, outcome) pairs in completion order, updating the progress bar."""
+    items = list(items)
+    if keys is None:
+        keys = list(range(len(items)))
+    else:
+        keys = list(keys)
+        if len(keys) != len(items):
+            raise RobustDrakeError(f"run_parallel: {len(keys)} keys for {len(items)} items")
+    if workers is not None and int(workers) < 1:
+        raise RobustDrakeError(f"run_parallel: workers must be >= 1, got {workers}")
+    if not items:
+        return
+    if scheduler is not None:
+        source = _iter_dask(func, items, keys, scheduler)
+    elif int(workers or default_workers()) == 1:
+        source = _iter_serial(func, items, keys)
+    else:
+        source = _iter_pool(func, items, keys, int(workers or default_workers()), start_method)
+
+    bar = _make_bar(len(items), desc, progress)
+    failed = 0
+    try:
+        for i, outcome in source:
+            if not outcome.ok:
+                failed += 1
+                bar.set_postfix(failed=failed, refresh=False)
+            bar.update(1)
+            yield i, outcome
+    finally:
+        source.close()
+        bar.close()
+
+
+# ---------------------------------------------------------------------------------------------
+# back ends
+
+
+def _iter_serial(func, items, keys) -> Iterator[RunOutcome]:
+    for i, (key, item) in enumerate(zip(keys, items)):
+        yield i, _outcome(key, _call(func, item))
+
+
+def _iter_pool(func, items, keys, workers, start_method) -> Iterator[RunOutcome]:
+    _check_picklable(func, items)
+    workers = min(workers, len(items))
+    ctx = mp_context(start_method)
+    pending = list(range(len(items)))[::-1]  # stack of indices not started; pop() = next
+    attempts = [0] * len(items)
+    max_attempts = 2  # a worker crash gets one retry on a fresh pool
+
+    while pending:
+        pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx)
+        in_flight: dict = {}
+        broken = False
+        try:
+            while pending or in_flight:
+                # Keep exactly `workers` items in flight: a crash or Ctrl-C loses only those.
+                while pending and len(in_flight) < workers and not broken:
+                    i = pending.pop()
+                    attempts[i] += 1
+                    try:
+                        fut = pool.submit(_call, func, items[i])
+                    except BrokenProcessPool:
+                        pending.append(i)
+                        attempts[i] -= 1
+                        broken = True
+                        break
+                    in_flight[fut] = (i, time.perf_counter())
+                if not in_flight:
+                    break
+                done, _ = wait(list(in_flight), return_when=FIRST_COMPLETED)
+                for fut in done:
+                    i, t0 = in_flight.pop(fut)
+                    try:
+                        packed = fut.result()
+                    except BrokenProcessPool as exc:
+                        broken = True
+                        if attempts[i] < max_attempts:
+                            pending.append(i)
+                            continue
+                        yield i, _failed(keys[i], RuntimeError(
+                            f"worker process died while running this item ({exc})"),
+                            time.perf_counter() - t0)
+                        continue
+                    except Exception as exc:  # e.g. result not picklable
+                        yield i, _failed(keys[i], exc, time.perf_counter() - t0)
+                        continue
+                    yield i, _outcome(keys[i], packed)
+                if broken and not in_flight:
+                    break
+        finally:
+            # Normal end, Ctrl-C or the consumer stopped iterating: do not start anything new.
+            pool.shutdown(wait=not broken and not in_flight, cancel_futures=True)
+
+
+def _iter_dask(func, items, keys, scheduler) -> Iterator[RunOutcome]:
+    from distributed import Client, as_completed
+
+    own_client = False
+    if isinstance(scheduler, str):
+        try:
+            client = Client(scheduler, timeout="20s")
+        except Exception as exc:
+            raise RobustDrakeError(
+                f"cannot connect to the Dask scheduler at {scheduler!r}: {exc}") from exc
+        own_client = True
+    elif isinstance(scheduler, Client):
+        client = scheduler
+    else:
+        raise RobustDrakeError(
+            f"scheduler must be an address like 'tcp://host:8786' or a distributed.Client, "
+            f"got {type(scheduler).__name__}")
+    _check_picklable(func, items)
+    futures = {}
+    try:
+        for i, item in enumerate(items):
+            fut = client.submit(_call, func, item, pure=False)
+            futures[fut] = i
+        started = time.perf_counter()
+        for fut in as_completed(list(futures)):
+            i = futures.pop(fut)
+            try:
+                packed = fut.result()
+            except Exception as exc:  # KilledWorker, CancelledError, ...
+                yield i, _failed(keys[i], exc, time.perf_counter() - started)
+            else:
+                yield i, _outcome(keys[i], packed)
+            fut.release()
+    finally:
+        if futures:
+            client.cancel(list(futures))
+        if own_client:
+            client.close()
