@@ -1,0 +1,416 @@
+"""Measured data for identification: canonical CSV, DFKI adapter, validation, filtering.
+
+Canonical CSV (what :func:`write_canonical_csv` writes and every command reads)
+    columns ``t, q1..qn, tau1..taun``, optional ``qd1..qdn, qdd1..qddn``; SI units
+    (s, rad, rad/s, rad/s^2, N m).
+
+DFKI adapter (the DFKI RIC double-pendulum records, ``../shared/data/dfki_double_pendulum``)
+    columns ``time, pos_meas*, vel_meas*, tau_con*, tau_meas*``; the torque column is chosen
+    with ``torque="tau_meas"`` (default: the driver's current-based estimate) or ``"tau_con"``
+    (the command). ``vel_meas*`` is a plain finite difference there, so it is *not* used.
+
+Velocity / acceleration convention (one convention, applied everywhere)
+    1. positions and torques are low-pass filtered with the *same* zero-phase Butterworth
+       filter (order ``FilterSettings.order`` run forwards and backwards with
+       ``scipy.signal.filtfilt``, so no phase lag and an effective order 2*order; cut-off
+       ``cutoff_hz``, default 8 Hz);
+    2. ``qd`` = central difference (``numpy.gradient`` on the time stamps) of the filtered
+       positions; ``qdd`` = central difference of ``qd``;
+    3. filtering both sides of tau = Y(q, qd, qdd) theta identically keeps the linear model
+       consistent (the filter commutes with the linear map up to the nonlinearity of Y, which
+       is small below the cut-off).
+    Velocities given in a canonical CSV (``qd*``, ``qdd*``) are used as given when
+    ``use_given_derivatives=True``; otherwise they are recomputed by the convention above.
+
+Validation never silently drops anything: missing/duplicate columns, non-increasing or
+irregular time (the jitter is reported), NaN/inf, wrong joint count, constant or too-short
+signals and positions that look like degrees all raise :class:`DataError` with the file
+name and what to do.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from robust_drake.errors import DataError
+
+DEFAULT_CUTOFF_HZ = 8.0
+DEFAULT_FILTER_ORDER = 4
+MIN_SAMPLES = 50
+#: relative sampling jitter (std(dt)/mean(dt)) above which we refuse to filter as uniform data
+MAX_RELATIVE_JITTER = 0.2
+#: peak |q| above which positions "look like degrees" (4 pi rad = two full turns)
+DEGREE_THRESHOLD_RAD = 4.0 * np.pi
+
+
+class DataWarning(UserWarning):
+    """Data usable but suspicious (poor excitation, unpowered joint, large jitter)."""
+
+
+@dataclass
+class FilterSettings:
+    """The differentiation/filter convention actually applied (recorded in reports)."""
+
+    cutoff_hz: float | None = DEFAULT_CUTOFF_HZ  # None = no filtering
+    order: int = DEFAULT_FILTER_ORDER
+    method: str = "zero-phase Butterworth (filtfilt) on q and tau, central differences for qd, qdd"
+    derivatives: str = "computed"  # or "given" (from qd*/qdd* columns)
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+@dataclass
+class RawData:
+    """One file as read (before filtering): time, positions, torques, optional derivatives."""
+
+    t: np.ndarray
+    q: np.ndarray
+    tau: np.ndarray
+    qd: np.ndarray | None = None
+    qdd: np.ndarray | None = None
+    source: str = "<memory>"
+    fmt: str = "canonical"  # or "dfki"
+    torque_column: str = "tau"
+
+    @property
+    def n(self) -> int:
+        return self.q.shape[1]
+
+
+@dataclass
+class IdentData:
+    """Samples ready for identification (SI units); arrays are (N, n).
+
+    ``segment`` (N,) labels the file each sample came from (filtering and differentiation
+    never cross a file boundary; replays reset at segment starts). ``sources`` lists the files.
+    """
+
+    t: np.ndarray
+    q: np.ndarray
+    qd: np.ndarray
+    qdd: np.ndarray
+    tau: np.ndarray
+    dt: float
+    robot: str | None = None
+    sources: list[str] = field(default_factory=list)
+    filter: FilterSettings = field(default_factory=FilterSettings)
+    segment: np.ndarray | None = None
+    jitter: float = 0.0  # std(dt) / mean(dt), worst file
+    warnings: list[str] = field(default_factory=list)
+
+    def __post_init__(self):
+        if self.segment is None:
+            self.segment = np.zeros(len(self.t), dtype=int)
+
+    @property
+    def n(self) -> int:
+        return self.q.shape[1]
+
+    @property
+    def N(self) -> int:
+        return self.q.shape[0]
+
+    def __len__(self) -> int:
+        return self.N
+
+    def subset(self, index) -> "IdentData":
+        """Samples ``index`` (slice, boolean mask or integer array) as a new IdentData."""
+        return dataclasses.replace(
+            self,
+            t=self.t[index], q=self.q[index], qd=self.qd[index], qdd=self.qdd[index],
+            tau=self.tau[index], segment=self.segment[index], warnings=list(self.warnings),
+        )
+
+    def segments(self) -> list["IdentData"]:
+        """One IdentData per contiguous source file."""
+        return [self.subset(self.segment == s) for s in np.unique(self.segment)]
+
+    def with_tau(self, tau: np.ndarray) -> "IdentData":
+        return dataclasses.replace(self, tau=np.asarray(tau, dtype=float))
+
+    @staticmethod
+    def concatenate(parts: list["IdentData"]) -> "IdentData":
+        """Stack several datasets (each keeps its own segment labels, renumbered)."""
+        if not parts:
+            raise DataError("no data to concatenate")
+        n = parts[0].n
+        for p in parts:
+            if p.n != n:
+                raise DataError(f"cannot combine data with {p.n} and {n} joints ({p.sources})")
+        segs, offset = [], 0
+        for p in parts:
+            _, inv = np.unique(p.segment, return_inverse=True)
+            segs.append(inv + offset)
+            offset += inv.max() + 1
+        cat = lambda name: np.concatenate([getattr(p, name) for p in parts])  # noqa: E731
+        return IdentData(
+            t=cat("t"), q=cat("q"), qd=cat("qd"), qdd=cat("qdd"), tau=cat("tau"),
+            dt=float(np.mean([p.dt for p in parts])), robot=parts[0].robot,
+            sources=[s for p in parts for s in p.sources], filter=parts[0].filter,
+            segment=np.concatenate(segs), jitter=max(p.jitter for p in parts),
+            warnings=[w for p in parts for w in p.warnings],
+        )
+
+    def summary(self) -> dict:
+        return {
+            "samples": int(self.N), "joints": int(self.n), "dt": float(self.dt),
+            "jitter": float(self.jitter), "sources": list(self.sources),
+            "filter": self.filter.to_dict(),
+            "q_range": [[float(a), float(b)] for a, b in zip(self.q.min(0), self.q.max(0))],
+            "qd_max": [float(x) for x in np.abs(self.qd).max(0)],
+            "tau_max": [float(x) for x in np.abs(self.tau).max(0)],
+        }
+
+
+# --------------------------------------------------------------------------- reading
+def _numbered(columns: list[str], prefix: str) -> list[str]:
+    """Columns ``prefix1, prefix2, ...`` in index order (stops at the first gap)."""
+    out, i = [], 1
+    while f"{prefix}{i}" in columns:
+        out.append(f"{prefix}{i}")
+        i += 1
+    return out
+
+
+def detect_format(columns: list[str]) -> str:
+    if "time" in columns and "pos_meas1" in columns:
+        return "dfki"
+    if "t" in columns and "q1" in columns:
+        return "canonical"
+    raise DataError(
+        "unrecognised CSV columns "
+        f"{columns[:12]}{'...' if len(columns) > 12 else ''}: expected the canonical "
+        "'t, q1..qn, tau1..taun [, qd1..qdn, qdd1..qddn]' or the DFKI "
+        "'time, pos_meas*, vel_meas*, tau_con*, tau_meas*'"
+    )
+
+
+def read_csv(path: str, torque: str = "tau_meas") -> RawData:
+    """Read a canonical or DFKI CSV into :class:`RawData` (no filtering; checks columns).
+
+    ``torque`` selects the DFKI torque column family (``tau_meas`` or ``tau_con``); it is
+    ignored for canonical files (always ``tau*``).
+    """
+    import pandas as pd
+
+    path = os.fspath(path)
+    if not os.path.exists(path):
+        raise DataError(f"{path}: no such file")
+    try:
+        header = pd.read_csv(path, nrows=0).columns
+    except Exception as exc:  # pandas raises several types for garbage
+        raise DataError(f"{path}: cannot read as CSV ({exc})") from exc
+    cols = [str(c).strip() for c in header]
+    dup = sorted({c for c in cols if cols.count(c) > 1})
+    if dup:
+        raise DataError(f"{path}: duplicate columns {dup}")
+    fmt = detect_format(cols)
+    df = pd.read_csv(path)
+    df.columns = cols
+    if fmt == "canonical":
+        tcol, qcols, taucols = "t", _numbered(cols, "q"), _numbered(cols, "tau")
+        qdcols, qddcols = _numbered(cols, "qd"), _numbered(cols, "qdd")
+        torque_column = "tau"
+    else:
+        if torque not in ("tau_meas", "tau_con"):
+            raise DataError(f"--torque must be 'tau_meas' or 'tau_con', got {torque!r}")
+        tcol, qcols, taucols = "time", _numbered(cols, "pos_meas"), _numbered(cols, torque)
+        qdcols, qddcols = [], []  # vel_meas is a raw finite difference: recomputed instead
+        torque_column = torque
+    n = len(qcols)
+    if not taucols:
+        raise DataError(f"{path}: no torque columns ({'tau1..' if fmt == 'canonical' else torque + '1..'})")
+    if len(taucols) != n:
+        raise DataError(f"{path}: {n} position columns but {len(taucols)} torque columns")
+    for name, group in (("qd", qdcols), ("qdd", qddcols)):
+        if group and len(group) != n:
+            raise DataError(f"{path}: {n} position columns but {len(group)} {name} columns")
+    extra_q = [c for c in cols if c.startswith("q") and c[1:].isdigit() and c not in qcols]
+    if extra_q:
+        raise DataError(f"{path}: position columns not numbered 1..n without gaps: {extra_q}")
+
+    def arr(names):
+        a = df[names].to_numpy(dtype=float) if names else None
+        return a
+
+    try:
+        t = df[tcol].to_numpy(dtype=float)
+        raw = RawData(
+            t=t, q=arr(qcols), tau=arr(taucols), qd=arr(qdcols) if qdcols else None,
+            qdd=arr(qddcols) if qddcols else None, source=path, fmt=fmt, torque_column=torque_column,
+        )
+    except ValueError as exc:
+        raise DataError(f"{path}: non-numeric values ({exc})") from exc
+    return raw
+
+
+def write_canonical_csv(path, t, q, tau, qd=None, qdd=None) -> str:
+    """Write the canonical CSV (``t, q1..qn, [qd1..qdn, qdd1..qddn,] tau1..taun``)."""
+    import pandas as pd
+
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    n = q.shape[1]
+    data = {"t": np.asarray(t, dtype=float)}
+    for i in range(n):
+        data[f"q{i + 1}"] = q[:, i]
+    for name, a in (("qd", qd), ("qdd", qdd)):
+        if a is not None:
+            for i in range(n):
+                data[f"{name}{i + 1}"] = np.asarray(a, dtype=float)[:, i]
+    for i in range(n):
+        data[f"tau{i + 1}"] = np.asarray(tau, dtype=float)[:, i]
+    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+    pd.DataFrame(data).to_csv(path, index=False, float_format="%.10g")
+    return os.fspath(path)
+
+
+# --------------------------------------------------------------------------- validation
+def validate_raw(raw: RawData, n_joints: int | None = None, allow_degrees: bool = False) -> dict:
+    """Check one file; raise :class:`DataError` on anything unusable. Returns timing stats.
+
+    Returns ``{"dt": mean step, "jitter": std(dt)/mean(dt), "max_dt": ..., "warnings": [...]}``.
+    """
+    src = raw.source
+    warns: list[str] = []
+    N = len(raw.t)
+    if N < MIN_SAMPLES:
+        raise DataError(f"{src}: only {N} samples; need at least {MIN_SAMPLES}")
+    if n_joints is not None and raw.n != n_joints:
+        raise DataError(f"{src}: {raw.n} joints in the file but the robot has {n_joints}")
+    for name in ("t", "q", "tau", "qd", "qdd"):
+        a = getattr(raw, name)
+        if a is None:
+            continue
+        bad = ~np.isfinite(a)
+        if bad.any():
+            rows = np.unique(np.nonzero(bad)[0])
+            raise DataError(
+                f"{src}: {int(bad.sum())} NaN/inf values in {name} (first rows {rows[:5].tolist()});"
+                " clean or cut the file, nothing is dropped silently"
+            )
+    dt = np.diff(raw.t)
+    if (dt <= 0).any():
+        k = int(np.argmax(dt <= 0))
+        raise DataError(
+            f"{src}: time is not strictly increasing at row {k + 1} "
+            f"(t={raw.t[k]:.6g} then {raw.t[k + 1]:.6g})"
+        )
+    dt_med = float(np.median(dt))
+    jitter = float(np.std(dt) / np.mean(dt))
+    if jitter > MAX_RELATIVE_JITTER or dt.max() > 5 * dt_med:
+        raise DataError(
+            f"{src}: irregular sampling: median dt {dt_med:.4g} s, jitter std/mean {jitter:.3f}, "
+            f"largest gap {dt.max():.4g} s at t={raw.t[int(np.argmax(dt))]:.4g}; resample to a "
+            "uniform grid or split the file at the gap"
+        )
+    if jitter > 0.01:
+        warns.append(f"{os.path.basename(src)}: sampling jitter std(dt)/mean(dt) = {jitter:.3f}")
+    span = np.ptp(raw.q, axis=0)
+    for i in range(raw.n):
+        if span[i] == 0.0:
+            raise DataError(f"{src}: position q{i + 1} is constant; the joint never moved (wrong column?)")
+    tau_span = np.ptp(raw.tau, axis=0)
+    if np.all(tau_span == 0.0):
+        raise DataError(f"{src}: every torque column is constant; nothing drives the motion")
+    for i in range(raw.n):
+        if tau_span[i] == 0.0:
+            warns.append(
+                f"{os.path.basename(src)}: torque {i + 1} is constant ({raw.tau[0, i]:g} N m): "
+                "treated as an unpowered joint"
+            )
+    peak = np.abs(raw.q).max(axis=0)
+    if not allow_degrees and (peak > DEGREE_THRESHOLD_RAD).any():
+        i = int(np.argmax(peak))
+        raise DataError(
+            f"{src}: |q{i + 1}| reaches {peak[i]:.4g}, more than two turns: positions look like "
+            "degrees (convert to rad); pass allow_degrees=True if the joint really turns that far"
+        )
+    return {"dt": float(np.mean(dt)), "jitter": jitter, "max_dt": float(dt.max()), "warnings": warns}
+
+
+# --------------------------------------------------------------------------- filtering
+def zero_phase_lowpass(x: np.ndarray, dt: float, cutoff_hz: float | None, order: int = DEFAULT_FILTER_ORDER):
+    """Zero-phase Butterworth low-pass along axis 0 (``filtfilt``; identity if cutoff None)."""
+    if cutoff_hz is None:
+        return np.array(x, dtype=float, copy=True)
+    from scipy.signal import butter, filtfilt
+
+    nyq = 0.5 / dt
+    if not 0.0 < cutoff_hz < nyq:
+        raise DataError(f"filter cut-off {cutoff_hz} Hz must lie in (0, Nyquist = {nyq:.4g} Hz)")
+    b, a = butter(order, cutoff_hz / nyq)
+    padlen = min(3 * max(len(a), len(b)) * 10, x.shape[0] - 1)
+    return filtfilt(b, a, x, axis=0, padlen=padlen)
+
+
+def differentiate(t: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Central differences on the actual time stamps (second order, one-sided at the ends)."""
+    return np.gradient(x, t, axis=0, edge_order=2)
+
+
+def prepare(
+    raw: RawData | list[RawData],
+    cutoff_hz: float | None = DEFAULT_CUTOFF_HZ,
+    order: int = DEFAULT_FILTER_ORDER,
+    robot: str | None = None,
+    n_joints: int | None = None,
+    use_given_derivatives: bool = False,
+    allow_degrees: bool = False,
+) -> IdentData:
+    """Validate, filter and differentiate one or more files into one :class:`IdentData`."""
+    raws = raw if isinstance(raw, (list, tuple)) else [raw]
+    if not raws:
+        raise DataError("no data files given")
+    parts = []
+    for k, r in enumerate(raws):
+        stats = validate_raw(r, n_joints=n_joints if n_joints is not None else raws[0].n,
+                             allow_degrees=allow_degrees)
+        dt = stats["dt"]
+        given = use_given_derivatives and r.qd is not None and r.qdd is not None
+        if given:
+            q, qd, qdd, tau = r.q.copy(), r.qd.copy(), r.qdd.copy(), r.tau.copy()
+            fs = FilterSettings(cutoff_hz=None, order=0, derivatives="given")
+        else:
+            q = zero_phase_lowpass(r.q, dt, cutoff_hz, order)
+            tau = zero_phase_lowpass(r.tau, dt, cutoff_hz, order)
+            qd = differentiate(r.t, q)
+            qdd = differentiate(r.t, qd)
+            fs = FilterSettings(cutoff_hz=cutoff_hz, order=order)
+        parts.append(IdentData(
+            t=r.t.copy(), q=q, qd=qd, qdd=qdd, tau=tau, dt=dt, robot=robot, sources=[r.source],
+            filter=fs, segment=np.full(len(r.t), k), jitter=stats["jitter"], warnings=stats["warnings"],
+        ))
+    data = IdentData.concatenate(parts) if len(parts) > 1 else parts[0]
+    for w in data.warnings:
+        warnings.warn(w, DataWarning, stacklevel=2)
+    return data
+
+
+def load(
+    paths, robot: str | None = None, n_joints: int | None = None, torque: str = "tau_meas",
+    cutoff_hz: float | None = DEFAULT_CUTOFF_HZ, order: int = DEFAULT_FILTER_ORDER,
+    use_given_derivatives: bool = False, allow_degrees: bool = False,
+) -> IdentData:
+    """Read + validate + filter one path or a list of paths (canonical or DFKI)."""
+    if isinstance(paths, (str, os.PathLike)):
+        paths = [paths]
+    raws = [read_csv(p, torque=torque) for p in paths]
+    return prepare(raws, cutoff_hz=cutoff_hz, order=order, robot=robot, n_joints=n_joints,
+                   use_given_derivatives=use_given_derivatives, allow_degrees=allow_degrees)
+
+
+def from_arrays(t, q, tau, qd=None, qdd=None, robot=None, cutoff_hz=DEFAULT_CUTOFF_HZ,
+                order=DEFAULT_FILTER_ORDER, source="<memory>") -> IdentData:
+    """Build an IdentData from arrays with the same validation and convention as files."""
+    raw = RawData(t=np.asarray(t, float), q=np.atleast_2d(np.asarray(q, float)),
+                  tau=np.atleast_2d(np.asarray(tau, float)),
+                  qd=None if qd is None else np.asarray(qd, float),
+                  qdd=None if qdd is None else np.asarray(qdd, float), source=source)
+    return prepare(raw, cutoff_hz=cutoff_hz, order=order, robot=robot,
+                   use_given_derivatives=qd is not None and qdd is not None)
