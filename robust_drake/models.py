@@ -1,0 +1,360 @@
+"""Arm models: URDF lookup, Drake plants, and the paper parameter sets.
+
+Every arm of the project is a URDF file in ``models/`` (override the folder with the environment
+variable ``ROBUST_DRAKE_MODELS``).  Conventions shared by all files:
+
+- joints ``joint1`` .. ``jointn`` (revolute, unlimited), one actuator ``motor<i>`` per joint;
+- link ``i`` has its origin on joint ``i`` and its x axis along the link;
+- a frame ``tool`` at the tip of the last link (forward kinematics:
+  ``plant.GetFrameByName("tool")``);
+- no joint damping or friction in the URDF (friction is a separate effect block);
+- reflected rotor inertia, where an arm has gears, is given the Drake way
+  (``<transmission>`` with ``drake:rotor_inertia`` and ``drake:gear_ratio``), so the plant's mass
+  matrix contains ``kr^2 Ir`` on the diagonal.
+
+D2R2 numbers (Jaritz & Spong, seeds/001, appendix): tables 8, 9, 11 and eq. 93.  The link
+lengths are not printed; see ``models/d2r2.urdf`` and BUILD_NOTES.md ("Models and regressors")
+for the derivation of l1 = l2 = 0.30 m.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import pathlib
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from robust_drake.errors import RobustDrakeError
+
+__all__ = [
+    "MODELS_DIR",
+    "ROBOTS",
+    "ArmSpec",
+    "get_arm",
+    "models_dir",
+    "resolve_urdf",
+    "make_plant",
+    "add_arm",
+    "D2R2_THETA_UNLOADED",
+    "D2R2_THETA_LOADED",
+    "D2R2_THETA0",
+    "D2R2_LOAD_INTERVALS",
+    "D2R2_TORQUE_LIMIT",
+    "d2r2_theta",
+    "d2r2_theta_from_plant",
+    "set_d2r2_theta",
+]
+
+_DEFAULT_MODELS_DIR = pathlib.Path(__file__).resolve().parent.parent / "models"
+MODELS_DIR: pathlib.Path = pathlib.Path(os.environ.get("ROBUST_DRAKE_MODELS", _DEFAULT_MODELS_DIR))
+
+
+def models_dir() -> pathlib.Path:
+    """The models folder, re-reading ``ROBUST_DRAKE_MODELS`` at call time."""
+    env = os.environ.get("ROBUST_DRAKE_MODELS")
+    return pathlib.Path(env) if env else MODELS_DIR
+
+
+@dataclass(frozen=True)
+class ArmSpec:
+    """A named arm: which URDF, how many joints, the geometry the papers use.
+
+    ``loads`` maps a load name to a URDF file name (the default load is ``"none"``).
+    ``torque_limits`` are the physical actuator limits in N m (informative; the URDFs do not
+    clamp, controllers that want saturation apply it themselves).
+    """
+
+    name: str
+    urdf: str
+    n: int
+    link_lengths: tuple
+    gravity: bool
+    plane: str | None
+    loads: dict = field(default_factory=dict)
+    description: str = ""
+    torque_limits: tuple | None = None
+
+
+D2R2_TORQUE_LIMIT = 31.2  # N m, JS section 1 (+-8 V command, Compumotor DM1015-B)
+
+ROBOTS: dict[str, ArmSpec] = {
+    "d2r2": ArmSpec(
+        name="d2r2",
+        urdf="d2r2.urdf",
+        n=2,
+        link_lengths=(0.30, 0.30),
+        gravity=False,
+        plane="horizontal",
+        loads={"none": "d2r2.urdf", "max": "d2r2_loaded.urdf"},
+        description=(
+            "Jaritz & Spong D2R2 two-link direct-drive arm, horizontal plane; theta (eq. 14) = "
+            "table 8 unloaded, table 9 with the maximum load (eq. 93) welded to link 2"
+        ),
+        torque_limits=(D2R2_TORQUE_LIMIT, D2R2_TORQUE_LIMIT),
+    ),
+    "imi_scara": ArmSpec(
+        name="imi_scara",
+        urdf="imi_scara.urdf",
+        n=2,
+        link_lengths=(0.359, 0.24),
+        gravity=False,
+        plane="horizontal",
+        loads={"none": "imi_scara.urdf"},
+        description=(
+            "Calafiore & Indri IMI SCARA, horizontal plane; inertial part of the section 5.1 "
+            "central estimate theta0 where physically realisable (friction not in the URDF)"
+        ),
+    ),
+    "siciliano_2link": ArmSpec(
+        name="siciliano_2link",
+        urdf="siciliano_2link.urdf",
+        n=2,
+        link_lengths=(1.0, 1.0),
+        gravity=True,
+        plane="vertical",
+        loads={"none": "siciliano_2link.urdf"},
+        description=(
+            "Bascetta & Rocco case study (Sciavicco & Siciliano two-link arm): 50 kg links, "
+            "5 kg motors, rotor inertia 0.01 kg m^2, gear ratio 100, vertical plane"
+        ),
+    ),
+    "dfki_double_pendulum_c1": ArmSpec(
+        name="dfki_double_pendulum_c1",
+        urdf="dfki_double_pendulum_c1.urdf",
+        n=2,
+        link_lengths=(0.2, 0.3),
+        gravity=True,
+        plane="vertical",
+        loads={"none": "dfki_double_pendulum_c1.urdf"},
+        description=(
+            "DFKI RIC double pendulum, design C.1 (data in ../shared/data/dfki_double_pendulum), "
+            "q = 0 hanging down; inertias from the lab's dfki_model_1.0.yml"
+        ),
+        torque_limits=(12.0, 12.0),
+    ),
+    "dfki_double_pendulum_a0": ArmSpec(
+        name="dfki_double_pendulum_a0",
+        urdf="dfki_double_pendulum_a0.urdf",
+        n=2,
+        link_lengths=(0.3, 0.2),
+        gravity=True,
+        plane="vertical",
+        loads={"none": "dfki_double_pendulum_a0.urdf"},
+        description=(
+            "DFKI RIC double pendulum, design A.0 (l1 = 0.3 m, l2 = 0.2 m); no lab parameter file, "
+            "inertias scaled from design C.1"
+        ),
+        torque_limits=(12.0, 12.0),
+    ),
+    "serial7": ArmSpec(
+        name="serial7",
+        urdf="serial7.urdf",
+        n=7,
+        link_lengths=(0.34, 0.0, 0.40, 0.0, 0.40, 0.0, 0.126),
+        gravity=True,
+        plane=None,
+        loads={"none": "serial7.urdf"},
+        description="7-link serial test arm (iiwa-like axes, gravity, geared joints) for regressor speed",
+    ),
+}
+
+
+def get_arm(name: str) -> ArmSpec:
+    """The :class:`ArmSpec` called ``name``; RobustDrakeError listing the known names otherwise."""
+    try:
+        return ROBOTS[name]
+    except (KeyError, TypeError):
+        raise RobustDrakeError(
+            f"unknown robot {name!r}; known robots: {', '.join(sorted(ROBOTS))}"
+        ) from None
+
+
+def resolve_urdf(robot: str | os.PathLike, load: str = "none") -> pathlib.Path:
+    """Path of the URDF for ``robot`` (a name in ROBOTS, or a path to a ``.urdf`` file).
+
+    ``load`` selects a load variant of a named robot (``get_arm(robot).loads``); a path accepts
+    only ``load="none"``.
+    """
+    text = os.fspath(robot)
+    if text in ROBOTS:
+        spec = ROBOTS[text]
+        if load not in spec.loads:
+            raise RobustDrakeError(
+                f"robot {text!r} has no load {load!r}; available loads: {', '.join(spec.loads)}"
+            )
+        path = models_dir() / spec.loads[load]
+        if not path.is_file():
+            raise RobustDrakeError(
+                f"URDF for robot {text!r} (load {load!r}) not found at {path}; "
+                "check ROBUST_DRAKE_MODELS"
+            )
+        return path
+    if text.endswith(".urdf"):
+        path = pathlib.Path(text).expanduser()
+        if not path.is_file():
+            raise RobustDrakeError(f"URDF file {path} does not exist")
+        if load != "none":
+            raise RobustDrakeError(
+                f"load {load!r} given for a URDF path; load variants exist only for named robots"
+            )
+        return path.resolve()
+    raise RobustDrakeError(
+        f"unknown robot {text!r}: give one of {', '.join(sorted(ROBOTS))} or a path to a .urdf file"
+    )
+
+
+def _parse_into(plant, robot, load):
+    from pydrake.multibody.parsing import Parser
+
+    path = resolve_urdf(robot, load)
+    try:
+        Parser(plant).AddModels(str(path))
+    except RuntimeError as exc:  # Drake parser errors
+        raise RobustDrakeError(f"could not parse {path}: {exc}") from exc
+    return path
+
+
+def make_plant(robot: str, load: str = "none", time_step: float = 0.0, *,
+               use_sampled_output_ports: bool = False):
+    """A finalized, standalone ``MultibodyPlant`` of ``robot`` (no SceneGraph).
+
+    Gravity is Drake's default (world -z, 9.81 m/s^2); horizontal arms have their joint axes
+    along world z so gravity produces no joint torque.  For a discrete plant (time_step > 0)
+    the sampled output ports are switched off by default (see the pydrake pitfalls notes).
+    """
+    from pydrake.multibody.plant import MultibodyPlant
+
+    plant = MultibodyPlant(time_step=float(time_step))
+    _parse_into(plant, robot, load)
+    if time_step > 0 and not use_sampled_output_ports:
+        plant.SetUseSampledOutputPorts(False)
+    plant.Finalize()
+    return plant
+
+
+def add_arm(builder, robot: str, load: str = "none", time_step: float = 0.0, *,
+            use_sampled_output_ports: bool = False):
+    """Add ``robot`` to a ``DiagramBuilder`` with ``AddMultibodyPlantSceneGraph``.
+
+    Returns ``(plant, scene_graph)``; the plant is finalized.  Actuation input port
+    ``plant.get_actuation_input_port()`` has one entry per joint (motor1..motorn, in joint
+    order); state output ``plant.get_state_output_port()`` is [q, v].
+    """
+    from pydrake.multibody.plant import AddMultibodyPlantSceneGraph
+
+    plant, scene_graph = AddMultibodyPlantSceneGraph(builder, time_step=float(time_step))
+    _parse_into(plant, robot, load)
+    if time_step > 0 and not use_sampled_output_ports:
+        plant.SetUseSampledOutputPorts(False)
+    plant.Finalize()
+    return plant, scene_graph
+
+
+# --------------------------------------------------------------------------- D2R2 (JS appendix)
+D2R2_THETA_UNLOADED = (0.678, 0.033, 0.029)  # table 8
+D2R2_THETA_LOADED = (0.784, 0.183, 0.135)  # table 9
+# Table 11.  Eq. 16 prints theta0 = 1/2 (theta_max - theta_unloaded), a typo for the mean
+# 1/2 (theta_max + theta_unloaded), which is what table 11 lists.
+D2R2_THETA0 = (0.731, 0.108, 0.082)
+D2R2_LOAD_INTERVALS = {"dm2": (0.0, 1.1841), "dlc2": (0.0, 0.0694), "dI2": (0.0, 0.109)}  # eq. 93
+
+
+def d2r2_theta(m1, lc1, I1, m2, lc2, I2, l1) -> np.ndarray:
+    """JS eq. 14: theta = [m1 lc1^2 + m2 l1^2 + I1, m2 lc2^2 + I2, m2 l1 lc2].
+
+    I1, I2 are the links' inertias about their centres of mass (axis perpendicular to the
+    plane).  Broadcasts over array arguments (last axis of the result has length 3).
+    """
+    m1, lc1, I1, m2, lc2, I2, l1 = np.broadcast_arrays(
+        *(np.asarray(x, dtype=float) for x in (m1, lc1, I1, m2, lc2, I2, l1))
+    )
+    return np.stack(
+        [m1 * lc1**2 + m2 * l1**2 + I1, m2 * lc2**2 + I2, m2 * l1 * lc2], axis=-1
+    )
+
+
+def _check_two_link(plant):
+    if plant.num_positions() != 2 or plant.num_velocities() != 2:
+        raise RobustDrakeError(
+            f"expected a 2-joint arm (D2R2-like), got {plant.num_positions()} positions"
+        )
+
+
+def d2r2_theta_from_plant(plant, context=None) -> np.ndarray:
+    """theta of JS eq. 14 read from the plant's parameters in ``context``.
+
+    Uses the mass matrix at q = 0 (JS eq. 3: d11 = theta1 + theta2 + 2 theta3,
+    d12 = theta2 + theta3, d22 = theta2), so it includes welded payloads, reflected rotor
+    inertia and whatever parameters the context holds.  Assumes link 2's centre of mass lies
+    on the link's axis (true for the project's D2R2 files and for ``set_d2r2_theta``).
+    """
+    _check_two_link(plant)
+    ctx = plant.CreateDefaultContext() if context is None else context.Clone()
+    plant.SetPositions(ctx, np.zeros(2))
+    M = plant.CalcMassMatrix(ctx)
+    th2 = M[1, 1]
+    th3 = M[0, 1] - th2
+    th1 = M[0, 0] - th2 - 2.0 * th3
+    return np.array([th1, th2, th3])
+
+
+def _joint2_offset(plant):
+    """l1: distance from joint 1's axis to joint 2's axis (in link 1's frame)."""
+    joints = [plant.get_joint(j) for j in plant.GetJointIndices()]
+    moving = [j for j in joints if j.num_velocities() == 1]
+    if len(moving) != 2:
+        raise RobustDrakeError("expected exactly two single-dof joints")
+    j2 = moving[1]
+    p = j2.frame_on_parent().GetFixedPoseInBodyFrame().translation()
+    return moving[0], j2, float(math.hypot(p[0], p[1]))
+
+
+def set_d2r2_theta(plant, context, theta) -> None:
+    """Change the link inertial parameters in ``context`` so that the plant's theta (eq. 14)
+    equals ``theta`` (used to set Monte Carlo "true" parameters).
+
+    Realisation (l1 is fixed by the URDF): link 2 keeps its current total mass m2 when possible,
+    lc2 = theta3 / (m2 l1) and I2 = theta2 - m2 lc2^2 > 0; if that is impossible, m2 is moved
+    inside the feasible interval theta3^2 / (l1^2 theta2) < m2 < theta1 / l1^2 (geometric mean of
+    the bounds).  Link 1 keeps m1 and gets m1 lc1^2 + I1 = theta1 - m2 l1^2.  Bodies welded to
+    link 2 (a payload) are folded into link 2: their own inertia is set to zero.
+    Raises RobustDrakeError if theta is not physically realisable
+    (needs theta1 > 0, theta2 > 0, theta3^2 < theta1 theta2).
+    """
+    from pydrake.multibody.tree import RotationalInertia, SpatialInertia
+
+    _check_two_link(plant)
+    th1, th2, th3 = (float(x) for x in np.asarray(theta, dtype=float).reshape(3))
+    if not (th1 > 0 and th2 > 0 and th3 * th3 < th1 * th2):
+        raise RobustDrakeError(
+            f"theta = {[th1, th2, th3]} is not physically realisable for a two-link arm "
+            "(needs theta1 > 0, theta2 > 0, theta3^2 < theta1 theta2)"
+        )
+    j1, j2, l1 = _joint2_offset(plant)
+    body1, body2 = j1.child_body(), j2.child_body()
+    welded2 = [b for b in plant.GetBodiesWeldedTo(body2) if b.index() != body2.index()]
+    m2 = body2.get_mass(context) + sum(b.get_mass(context) for b in welded2)
+    lo = th3 * th3 / (l1 * l1 * th2)
+    hi = th1 / (l1 * l1)
+    margin = 1e-9 * hi
+    if not (lo + margin < m2 < hi - margin):
+        m2 = math.sqrt(max(lo, 1e-12) * hi) if lo > 0 else 0.5 * hi
+    lc2 = th3 / (m2 * l1)
+    I2 = th2 - m2 * lc2 * lc2
+    R1 = th1 - m2 * l1 * l1
+    m1 = body1.get_mass(context)
+    lc1 = float(body1.CalcCenterOfMassInBodyFrame(context)[0])
+    if not (m1 * lc1 * lc1 < R1):
+        lc1 = math.sqrt(R1 / (2.0 * m1))
+    I1 = R1 - m1 * lc1 * lc1
+
+    def _slender(m, com_x, Izz):
+        I_com = RotationalInertia(0.1 * Izz, Izz, Izz)
+        return SpatialInertia.MakeFromCentralInertia(m, np.array([com_x, 0.0, 0.0]), I_com)
+
+    body1.SetSpatialInertiaInBodyFrame(context, _slender(m1, lc1, I1))
+    body2.SetSpatialInertiaInBodyFrame(context, _slender(m2, lc2, I2))
+    for b in welded2:
+        b.SetSpatialInertiaInBodyFrame(context, SpatialInertia.Zero())
