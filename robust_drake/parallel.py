@@ -13,8 +13,8 @@ One helper, three back ends, the same results:
 Every item runs ``func(item)``; ``func`` must be a module-level (picklable) function and the
 items picklable. An item whose ``func`` raises becomes ``RunOutcome(ok=False, error=...)``
 and the others continue. A worker process that dies (segfault, ``kill -9``, out of memory)
-costs only the items running on it at that moment: they are retried once on a fresh pool and
-recorded as failed if they die again. At most ``workers`` items are in flight, so a crash or
+costs only the items running on it at that moment: each of them is rerun alone on a fresh
+pool, and the one that kills its worker again is recorded as failed. At most ``workers`` items are in flight, so a crash or
 Ctrl-C loses at most those.
 
 >>> import math
@@ -35,6 +35,7 @@ import pickle
 import sys
 import time
 import traceback
+from collections import deque
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
@@ -250,34 +251,44 @@ def _iter_serial(func, items, keys) -> Iterator[RunOutcome]:
         yield i, _outcome(key, _call(func, item))
 
 
+def _submit(pool, func, items, queue: deque, in_flight: dict) -> bool:
+    """Submit the next index of ``queue``; False (index put back) if the pool is broken."""
+    i = queue.popleft()
+    try:
+        fut = pool.submit(_call, func, items[i])
+    except BrokenProcessPool:
+        queue.appendleft(i)
+        return False
+    in_flight[fut] = (i, time.perf_counter())
+    return True
+
+
 def _iter_pool(func, items, keys, workers, start_method) -> Iterator[RunOutcome]:
     _check_picklable(func, items)
     workers = min(workers, len(items))
     ctx = mp_context(start_method)
-    pending = list(range(len(items)))[::-1]  # stack of indices not started; pop() = next
-    attempts = [0] * len(items)
-    max_attempts = 2  # a worker crash gets one retry on a fresh pool
+    pending = deque(range(len(items)))  # not started yet
+    suspects: deque = deque()  # were in flight, with others, when a worker process died
 
-    while pending:
+    while pending or suspects:
         pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx)
         in_flight: dict = {}
         broken = False
         try:
-            while pending or in_flight:
-                # Keep exactly `workers` items in flight: a crash or Ctrl-C loses only those.
-                while pending and len(in_flight) < workers and not broken:
-                    i = pending.pop()
-                    attempts[i] += 1
-                    try:
-                        fut = pool.submit(_call, func, items[i])
-                    except BrokenProcessPool:
-                        pending.append(i)
-                        attempts[i] -= 1
-                        broken = True
-                        break
-                    in_flight[fut] = (i, time.perf_counter())
+            while pending or suspects or in_flight:
+                if not broken:
+                    if suspects:
+                        # Rerun each suspect alone: the one that kills its worker again is
+                        # the culprit; the innocent bystanders complete normally.
+                        if not in_flight:
+                            broken = not _submit(pool, func, items, suspects, in_flight)
+                    else:
+                        # Keep `workers` items in flight: a crash or Ctrl-C loses only those.
+                        while pending and len(in_flight) < workers and not broken:
+                            broken = not _submit(pool, func, items, pending, in_flight)
                 if not in_flight:
                     break
+                alone = len(in_flight) == 1
                 done, _ = wait(list(in_flight), return_when=FIRST_COMPLETED)
                 for fut in done:
                     i, t0 = in_flight.pop(fut)
@@ -285,21 +296,21 @@ def _iter_pool(func, items, keys, workers, start_method) -> Iterator[RunOutcome]
                         packed = fut.result()
                     except BrokenProcessPool as exc:
                         broken = True
-                        if attempts[i] < max_attempts:
-                            pending.append(i)
-                            continue
-                        yield i, _failed(keys[i], RuntimeError(
-                            f"worker process died while running this item ({exc})"),
-                            time.perf_counter() - t0)
+                        if alone:
+                            yield i, _failed(keys[i], RuntimeError(
+                                f"worker process died while running this item ({exc})"),
+                                time.perf_counter() - t0)
+                        else:
+                            suspects.append(i)
                         continue
-                    except Exception as exc:  # e.g. result not picklable
+                    except Exception as exc:  # e.g. a result that cannot be pickled
                         yield i, _failed(keys[i], exc, time.perf_counter() - t0)
                         continue
                     yield i, _outcome(keys[i], packed)
                 if broken and not in_flight:
                     break
         finally:
-            # Normal end, Ctrl-C or the consumer stopped iterating: do not start anything new.
+            # Normal end, Ctrl-C or the consumer stopped iterating: start nothing new.
             pool.shutdown(wait=not broken and not in_flight, cancel_futures=True)
 
 
