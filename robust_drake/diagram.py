@@ -1,0 +1,380 @@
+"""The closed-loop builder: plant + friction + encoder + observer + controller +
+saturation + trajectory + loggers, from a small :class:`ClosedLoopConfig`.
+
+::
+
+    reference --x_d--> observer --v, v_error--> controller --u (held)--> [compensation] --> saturation --tau--+
+       |                 ^ q                                                                                |
+       +------x_d--------+---------------------------------------------> controller                       v
+                         encoder <--state-- MultibodyPlant <--applied_generalized_force-- Adder(tau, effects...)
+                                                  |--state--> friction / effect blocks --------------------^
+
+The plant is continuous; the controller and observer are discrete at ``rate`` Hz and
+their outputs are held between samples (zero-order hold). The integrator is a fixed-step
+RK2 whose step divides the sample period (at most 0.4 ms), so every controller tick
+lands on an integrator step (see BUILD_NOTES.md and the pydrake pitfalls notes).
+
+A notebook user writes::
+
+    from robust_drake.diagram import ClosedLoopConfig, simulate
+    res = simulate(ClosedLoopConfig(robot="d2r2", controller="sp1", trajectory="cpt"))
+    res.metrics["error_task"]
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import asdict, dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+from pydrake.systems.analysis import ResetIntegratorFromFlags, Simulator
+from pydrake.systems.framework import DiagramBuilder
+from pydrake.systems.primitives import Adder, ConstantVectorSource, LogVectorOutput, Saturation
+
+from robust_drake.errors import RobustDrakeError
+from robust_drake.metrics import error_criteria, torque_statistics
+from robust_drake.models import ArmSpec, ROBOTS, add_arm, get_arm, set_d2r2_theta
+from robust_drake.registry import BuildContext, resolve
+from robust_drake.systems.friction import (
+    D2R2_COULOMB,
+    D2R2_K_HAT,
+    D2R2_VISCOUS,
+    CoulombViscousFriction,
+    FixedFrictionCompensation,
+)
+from robust_drake.systems.sensors import D2R2_THETA_M, QuantizingEncoder, quantize
+from robust_drake.trajectories import ReferenceTrajectory, make_reference
+
+MAX_INTEGRATOR_STEP = 4e-4  # s; the plant is integrated with steps no longer than this
+DIVERGENCE_LIMIT = 1e3  # |q| [rad] or |v| [rad/s] beyond this marks a run as diverged
+
+_DEFAULT = object()
+
+
+@dataclass
+class ClosedLoopConfig:
+    """Everything that defines one closed loop (serialisable except ``effects`` callables).
+
+    ``plant_friction``: ``{"coulomb": [...], "viscous": [...]}`` for the plant-side
+    Coulomb + viscous block, None for a frictionless plant; the default is the D2R2 values
+    for the D2R2 and None for other robots. ``friction_compensation`` adds the fixed JS
+    eqs. 89-90 term (``compensation_params={"k_hat": [...]}``). ``encoder_resolution``
+    [rad] quantises the measured position (None: exact); default theta_m of the D2R2 for
+    the D2R2, None otherwise. ``torque_limit`` [N m] saturates the command (None: no
+    limit); default 31.2 N m for the D2R2. ``true_theta`` sets the D2R2 plant's eq. 14
+    parameters (Monte Carlo "true" arm). ``effects`` are extra plant-side blocks: each a
+    registry name with params ``(name, {params})`` or a callable ``f(ctx) -> LeafSystem``
+    with input ``state`` (and optionally ``tau``) and output ``generalized_force``.
+    ``plant_setup`` callables ``f(plant, plant_context)`` change the plant's parameters
+    before each run.
+    """
+
+    robot: str = "d2r2"
+    load: str = "none"
+    controller: str = "sp1"
+    controller_params: dict = field(default_factory=dict)
+    trajectory: str = "cpt"
+    trajectory_params: dict = field(default_factory=dict)
+    rate: float = 2500.0
+    observer: str = "averaging"
+    observer_params: dict = field(default_factory=dict)
+    plant_friction: Any = _DEFAULT
+    friction_compensation: bool = False
+    compensation_params: dict = field(default_factory=dict)
+    encoder_resolution: Any = _DEFAULT
+    torque_limit: Any = _DEFAULT
+    duration: float | None = None
+    metrics_skip: float = 0.0
+    metrics_dt: float | None = 0.01
+    true_theta: list | None = None
+    initial_q: list | None = None
+    effects: list = field(default_factory=list)
+    plant_setup: list = field(default_factory=list)
+
+    def resolved(self) -> "ClosedLoopConfig":
+        """A copy with the robot-dependent defaults filled in and inputs checked."""
+        c = ClosedLoopConfig(**{k: getattr(self, k) for k in self.__dataclass_fields__})
+        d2r2 = str(c.robot).startswith("d2r2")
+        if c.plant_friction is _DEFAULT:
+            c.plant_friction = {"coulomb": list(D2R2_COULOMB), "viscous": list(D2R2_VISCOUS)} if d2r2 else None
+        if c.encoder_resolution is _DEFAULT:
+            c.encoder_resolution = D2R2_THETA_M if d2r2 else None
+        if c.torque_limit is _DEFAULT:
+            arm = ROBOTS.get(c.robot)
+            lim = arm.torque_limits if arm is not None and arm.torque_limits else None
+            c.torque_limit = list(lim) if (lim is not None and d2r2) else None
+        if not (isinstance(c.rate, (int, float)) and math.isfinite(c.rate) and c.rate > 0):
+            raise RobustDrakeError(f"sample rate must be a positive number of Hz (got {c.rate!r})")
+        if c.duration is not None and not c.duration > 0:
+            raise RobustDrakeError(f"duration must be positive (got {c.duration})")
+        return c
+
+    def to_dict(self) -> dict:
+        d = {k: getattr(self, k) for k in self.__dataclass_fields__ if k not in ("effects", "plant_setup")}
+        d["effects"] = [e if isinstance(e, (list, tuple)) else getattr(e, "__name__", repr(e)) for e in self.effects]
+        return {k: (None if v is _DEFAULT else v) for k, v in d.items()}
+
+
+@dataclass
+class SimulationResult:
+    """Logs of one closed-loop run, sampled at the controller rate, and its metrics."""
+
+    t: np.ndarray
+    q: np.ndarray  # true joint angles [rad] (K, n)
+    v: np.ndarray  # true joint velocities [rad/s]
+    q_d: np.ndarray
+    qd_d: np.ndarray
+    qdd_d: np.ndarray
+    q_meas: np.ndarray  # encoder output [rad]
+    v_hat: np.ndarray | None  # observer estimate held at the last tick [rad/s]
+    u: np.ndarray  # controller output (held) [N m]
+    tau: np.ndarray  # torque applied to the plant after compensation and saturation [N m]
+    metrics: dict
+    torque_stats: dict
+    sim_seconds: float
+    wall_seconds: float
+    diverged: bool
+    config: dict
+    link_lengths: tuple | None = None
+
+    def to_dict(self, logs: bool = False) -> dict:
+        out = dict(self.metrics)
+        out.update(sim_seconds=self.sim_seconds, wall_seconds=self.wall_seconds, diverged=self.diverged)
+        out.update(self.torque_stats)
+        if logs:
+            for k in ("t", "q", "v", "q_d", "qd_d", "q_meas", "u", "tau"):
+                out[k] = getattr(self, k).tolist()
+        return out
+
+
+def _arm_for(robot: str, n: int) -> ArmSpec:
+    if robot in ROBOTS:
+        return get_arm(robot)
+    return ArmSpec(name=str(robot), urdf=str(robot), n=n, link_lengths=(), gravity=True, plane=None,
+                   loads={"none": str(robot)})
+
+
+def _vector(x, n, what):
+    a = np.asarray(x, dtype=float)
+    a = np.full(n, float(a)) if a.ndim == 0 else a
+    if a.shape != (n,):
+        raise RobustDrakeError(f"{what} must have {n} entries (got {x!r})")
+    return a
+
+
+class ClosedLoop:
+    """A built closed-loop Diagram and what is needed to run it repeatedly."""
+
+    def __init__(self, config: ClosedLoopConfig):
+        self.config = config.resolved()
+        c = self.config
+        builder = DiagramBuilder()
+        self.plant, self.scene_graph = add_arm(builder, c.robot, c.load)
+        plant = self.plant
+        n = plant.num_velocities()
+        if plant.num_positions() != n:
+            raise RobustDrakeError("only arms with one position per velocity (revolute/prismatic joints) are supported")
+        self.n = n
+        self.arm = _arm_for(c.robot, n)
+        self.period = 1.0 / float(c.rate)
+        ctx = BuildContext(robot=str(c.robot), arm=self.arm, load=c.load, n=n, period=self.period, config=c)
+        self.build_context = ctx
+
+        # reference
+        self.reference = make_reference(self.arm, c.trajectory, **dict(c.trajectory_params))
+        if self.reference.n != n:
+            raise RobustDrakeError(f"trajectory {c.trajectory!r} has {self.reference.n} joints, robot has {n}")
+        src = builder.AddSystem(ReferenceTrajectory(self.reference))
+        src.set_name("reference")
+        x_d = src.get_output_port(0)
+
+        # sensor
+        enc = builder.AddSystem(QuantizingEncoder(n, c.encoder_resolution))
+        enc.set_name("encoder")
+        builder.Connect(plant.get_state_output_port(), enc.get_input_port(0))
+        q_meas = enc.get_output_port(0)
+        self.encoder = enc
+
+        # observer
+        obs = builder.AddSystem(resolve("observer", c.observer)(ctx, **dict(c.observer_params)))
+        obs.set_name("observer")
+        self.observer = obs
+        builder.Connect(q_meas, obs.GetInputPort("q"))
+        builder.Connect(x_d, obs.GetInputPort("x_d"))
+        if obs.HasInputPort("state"):
+            builder.Connect(plant.get_state_output_port(), obs.GetInputPort("state"))
+
+        # controller (+ fixed friction compensation) + saturation
+        ctrl = builder.AddSystem(resolve("controller", c.controller)(ctx, **dict(c.controller_params)))
+        ctrl.set_name("controller")
+        self.controller = ctrl
+        builder.Connect(x_d, ctrl.GetInputPort("x_d"))
+        builder.Connect(q_meas, ctrl.GetInputPort("q"))
+        builder.Connect(obs.GetOutputPort("v"), ctrl.GetInputPort("v"))
+        builder.Connect(obs.GetOutputPort("v_error"), ctrl.GetInputPort("v_error"))
+        u = ctrl.GetOutputPort("u")
+        self.compensation = None
+        if c.friction_compensation:
+            params = dict(c.compensation_params)
+            if not params and str(c.robot).startswith("d2r2"):
+                params = {"k_hat": list(D2R2_K_HAT)}
+            if "k_hat" not in params:
+                raise RobustDrakeError("friction_compensation needs compensation_params={'k_hat': [...]} for this robot")
+            comp = builder.AddSystem(FixedFrictionCompensation(n, **params))
+            comp.set_name("friction_compensation")
+            builder.Connect(u, comp.GetInputPort("u"))
+            v_src = obs.GetOutputPort("v_sampled") if obs.HasOutputPort("v_sampled") else obs.GetOutputPort("v")
+            builder.Connect(v_src, comp.GetInputPort("v"))
+            u_cmd = comp.get_output_port(0)
+            self.compensation = comp
+        else:
+            u_cmd = u
+        if c.torque_limit is not None:
+            lim = _vector(c.torque_limit, n, "torque_limit")
+            if np.any(lim <= 0):
+                raise RobustDrakeError("torque_limit must be positive")
+            sat = builder.AddSystem(Saturation(-lim, lim))
+            sat.set_name("saturation")
+            builder.Connect(u_cmd, sat.get_input_port(0))
+            tau = sat.get_output_port(0)
+        else:
+            tau = u_cmd
+        self.tau_port = tau
+        if obs.HasInputPort("tau"):
+            builder.Connect(tau, obs.GetInputPort("tau"))
+
+        # plant-side forces: applied torque + friction + effects
+        forces = [tau]
+        self.effect_blocks = []
+        if c.plant_friction is not None:
+            fr = builder.AddSystem(CoulombViscousFriction(n, c.plant_friction["coulomb"], c.plant_friction["viscous"]))
+            fr.set_name("plant_friction")
+            self.effect_blocks.append(fr)
+        for i, eff in enumerate(c.effects):
+            if callable(eff):
+                block = eff(ctx)
+            else:
+                name, params = (eff[0], eff[1]) if len(eff) > 1 else (eff[0], {})
+                block = resolve("plant_effect", name)(ctx, **dict(params))
+            block = builder.AddSystem(block)
+            block.set_name(f"effect_{i}_{block.get_name() or type(block).__name__}")
+            self.effect_blocks.append(block)
+        for block in self.effect_blocks:
+            builder.Connect(plant.get_state_output_port(), block.GetInputPort("state"))
+            if block.HasInputPort("tau"):
+                builder.Connect(tau, block.GetInputPort("tau"))
+            forces.append(block.GetOutputPort("generalized_force"))
+        if len(forces) > 1:
+            add = builder.AddSystem(Adder(len(forces), n))
+            add.set_name("force_sum")
+            for i, f in enumerate(forces):
+                builder.Connect(f, add.get_input_port(i))
+            builder.Connect(add.get_output_port(0), plant.get_applied_generalized_force_input_port())
+        else:
+            builder.Connect(tau, plant.get_applied_generalized_force_input_port())
+        if plant.num_actuators() > 0:
+            zero = builder.AddSystem(ConstantVectorSource(np.zeros(plant.num_actuators())))
+            builder.Connect(zero.get_output_port(0), plant.get_actuation_input_port())
+
+        # loggers at the sample rate
+        T = self.period
+        self._logs = {
+            "state": LogVectorOutput(plant.get_state_output_port(), builder, T),
+            "x_d": LogVectorOutput(x_d, builder, T),
+            "q_meas": LogVectorOutput(q_meas, builder, T),
+            "u": LogVectorOutput(u, builder, T),
+            "tau": LogVectorOutput(tau, builder, T),
+        }
+        if obs.HasOutputPort("v_sampled"):
+            self._logs["v_hat"] = LogVectorOutput(obs.GetOutputPort("v_sampled"), builder, T)
+        self.extra_logs = {}
+        self.builder = builder
+        self.diagram = None
+
+    def add_log(self, name: str, port) -> None:
+        """Log another output port at the sample rate (before the first run)."""
+        if self.diagram is not None:
+            raise RobustDrakeError("add_log must be called before the first simulate()")
+        self.extra_logs[name] = LogVectorOutput(port, self.builder, self.period)
+
+    def _finish(self):
+        if self.diagram is None:
+            self.diagram = self.builder.Build()
+            self.diagram.set_name(f"closed_loop_{self.config.robot}_{self.config.controller}")
+
+    def simulate(self, duration: float | None = None, initial_q=None) -> SimulationResult:
+        """Run from rest at q_d(0) (or ``initial_q``) for ``duration`` s (default: the reference's)."""
+        self._finish()
+        c = self.config
+        duration = float(duration or c.duration or self.reference.duration)
+        if duration <= 0:
+            raise RobustDrakeError("duration must be positive")
+        plant, n = self.plant, self.n
+        context = self.diagram.CreateDefaultContext()
+        plant_context = plant.GetMyMutableContextFromRoot(context)
+        q_d0, qd_d0 = self.reference.initial_state()
+        q0 = q_d0 if (initial_q if initial_q is not None else c.initial_q) is None else _vector(
+            initial_q if initial_q is not None else c.initial_q, n, "initial_q")
+        plant.SetPositions(plant_context, q0)
+        plant.SetVelocities(plant_context, np.zeros(n))
+        if c.true_theta is not None:
+            if not str(c.robot).startswith("d2r2"):
+                raise RobustDrakeError("true_theta is defined for the D2R2 (JS eq. 14); use plant_setup for other robots")
+            set_d2r2_theta(plant, plant_context, np.asarray(c.true_theta, dtype=float))
+        for setup in c.plant_setup:
+            setup(plant, plant_context)
+        obs_ctx = self.observer.GetMyMutableContextFromRoot(context)
+        if hasattr(self.observer, "set_initial"):
+            q0_meas = q0 if c.encoder_resolution is None else quantize(q0, c.encoder_resolution)
+            self.observer.set_initial(obs_ctx, q0_meas, q_d0, qd_d0)
+
+        simulator = Simulator(self.diagram, context)
+        steps = max(1, math.ceil(self.period / MAX_INTEGRATOR_STEP - 1e-9))
+        ResetIntegratorFromFlags(simulator, "runge_kutta2", self.period / steps)
+        wall0 = time.perf_counter()
+        diverged = False
+        try:
+            simulator.Initialize()
+            simulator.AdvanceTo(duration)
+        except RuntimeError as exc:
+            diverged = True
+            err = str(exc)
+        wall = time.perf_counter() - wall0
+
+        logs = {k: v.FindLog(context) for k, v in self._logs.items()}
+        t = logs["state"].sample_times()
+        X = logs["state"].data().T
+        XD = logs["x_d"].data().T
+        q, v = X[:, :n], X[:, n:]
+        if not np.all(np.isfinite(X)) or np.any(np.abs(X) > DIVERGENCE_LIMIT):
+            diverged = True
+        link_lengths = self.arm.link_lengths if len(self.arm.link_lengths) == 2 else None
+        if diverged or len(t) < 2:
+            metrics = {k: float("nan") for k in ("error1", "maxerr1", "error2", "maxerr2", "error_task", "maxerr_task")}
+        else:
+            metrics = error_criteria(t, q, XD[:, :n], link_lengths, skip=c.metrics_skip, dt=c.metrics_dt)
+        tau = logs["tau"].data().T
+        res = SimulationResult(
+            t=t, q=q, v=v, q_d=XD[:, :n], qd_d=XD[:, n:2 * n], qdd_d=XD[:, 2 * n:],
+            q_meas=logs["q_meas"].data().T,
+            v_hat=logs["v_hat"].data().T[:, :n] if "v_hat" in logs else None,
+            u=logs["u"].data().T, tau=tau, metrics=metrics,
+            torque_stats=torque_statistics(t, tau) if len(t) > 1 else {},
+            sim_seconds=float(t[-1]) if len(t) else 0.0, wall_seconds=wall, diverged=diverged,
+            config=c.to_dict(), link_lengths=link_lengths,
+        )
+        res.extra = {k: v.FindLog(context).data().T for k, v in self.extra_logs.items()}
+        res.context = context
+        return res
+
+
+def build_closed_loop(config: ClosedLoopConfig) -> ClosedLoop:
+    """Build (but do not run) the closed loop described by ``config``."""
+    return ClosedLoop(config)
+
+
+def simulate(config: ClosedLoopConfig, duration: float | None = None) -> SimulationResult:
+    """Build and run one closed loop; see :class:`ClosedLoopConfig`."""
+    return ClosedLoop(config).simulate(duration)

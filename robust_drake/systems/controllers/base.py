@@ -1,0 +1,72 @@
+"""Base class for discrete-time controllers that hold their torque between samples.
+
+A controller samples its inputs at every tick t_k = k T, computes u_k from them and
+holds it until t_{k+1} (zero-order hold): the held torque is the controller's discrete
+state, exposed with ``DeclareStateOutputPort`` so reading it never re-runs Python code.
+
+Ports (n joints):
+- inputs ``x_d`` = [q_d, qd_d, qdd_d] (3n), ``q`` (n, measured/quantised positions [rad]),
+  ``v`` (n, velocity estimate [rad/s]), ``v_error`` (n, estimate of d/dt (q - q_d) [rad/s]);
+- output ``u`` (n, joint torque command [N m]).
+
+Because the observers compute their outputs from the current ``q`` input and their own
+history, the torque applied from t_k uses the measurement taken at t_k: there is no
+extra one-sample delay (the paper's DSP also computed within the sample).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from pydrake.systems.framework import LeafSystem
+
+
+class DiscreteController(LeafSystem):
+    """Sampled controller skeleton; subclasses implement :meth:`compute` (pure math)."""
+
+    def __init__(self, n: int, period: float, name: str | None = None):
+        super().__init__()
+        if period <= 0:
+            raise ValueError(f"sample period must be positive, got {period}")
+        self.n = int(n)
+        self.period = float(period)
+        if name:
+            self.set_name(name)
+        self._x_d_port = self.DeclareVectorInputPort("x_d", 3 * self.n)
+        self._q_port = self.DeclareVectorInputPort("q", self.n)
+        self._v_port = self.DeclareVectorInputPort("v", self.n)
+        self._v_error_port = self.DeclareVectorInputPort("v_error", self.n)
+        self._u_index = self.DeclareDiscreteState(self.n)
+        self.DeclarePeriodicDiscreteUpdateEvent(self.period, 0.0, self._update)
+        self.DeclareStateOutputPort("u", self._u_index)
+
+    def compute(self, t, q_d, qd_d, qdd_d, q, v, v_error):  # pragma: no cover - abstract
+        """Return the n joint torques for this sample (override)."""
+        raise NotImplementedError
+
+    def _update(self, context, discrete_state):
+        n = self.n
+        x_d = self._x_d_port.Eval(context)
+        u = self.compute(
+            context.get_time(),
+            x_d[:n], x_d[n:2 * n], x_d[2 * n:],
+            self._q_port.Eval(context),
+            self._v_port.Eval(context),
+            self._v_error_port.Eval(context),
+        )
+        discrete_state.get_mutable_vector(self._u_index).get_mutable_value()[:] = u
+
+
+def diag_gain(x, n: int, name: str) -> np.ndarray:
+    """A diagonal gain given as a scalar, a length-n sequence or an n x n diagonal matrix."""
+    a = np.asarray(x, dtype=float)
+    if a.ndim == 0:
+        d = np.full(n, float(a))
+    elif a.ndim == 1 and a.shape[0] == n:
+        d = a.copy()
+    elif a.shape == (n, n) and np.allclose(a, np.diag(np.diag(a))):
+        d = np.diag(a).copy()
+    else:
+        raise ValueError(f"{name} must be a scalar, {n} numbers or an {n}x{n} diagonal matrix; got shape {a.shape}")
+    if np.any(d <= 0):
+        raise ValueError(f"{name} must be positive definite (got diagonal {d.tolist()})")
+    return d
