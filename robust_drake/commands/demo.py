@@ -1,0 +1,87 @@
+"""``robust-drake demo``: the main job that ``make demo`` runs end to end.
+
+Foundation part: SP1 and SP2 on the D2R2 with the CPT trajectory, unloaded and with the
+maximum load, printed in the layout of JS tables 2-3 (published values beside), plots in
+``--out``.
+"""
+
+from __future__ import annotations
+
+import pathlib
+
+from robust_drake.cli import add_output_flags, format_table, print_json
+from robust_drake.metrics import METRIC_KEYS
+
+# JS tables 2 (CPT, no load) and 3 (CPT, load), rows SP1 and SP2, columns METRIC_KEYS.
+PUBLISHED_CPT = {
+    ("sp1", "none"): (0.00624, 0.0014, 0.0644, 0.0097, 0.0216, 0.00339),
+    ("sp2", "none"): (0.00646, 0.0014, 0.0691, 0.0099, 0.0231, 0.00342),
+    ("sp1", "max"): (0.0126, 0.0030, 0.0636, 0.0108, 0.0235, 0.00375),
+    ("sp2", "max"): (0.0129, 0.0032, 0.0666, 0.0108, 0.0246, 0.00391),
+}
+
+
+def register(sub):
+    p = sub.add_parser("demo", help="the main job: SP1/SP2 on the D2R2 CPT (JS tables 2-3) and plots")
+    p.add_argument("--out", default="out", help="folder for plots (default out/)")
+    p.add_argument("--workers", type=int, default=None, help="parallel runs (default: the core count)")
+    p.add_argument("--duration", type=float, default=None, help="shorten every run (testing)")
+    add_output_flags(p, plot=None)
+    p.set_defaults(func=run)
+
+
+def _run_one(item):
+    from robust_drake.diagram import ClosedLoopConfig, simulate
+    from robust_drake.plotting import plot_tracking
+
+    controller, load, out_dir, duration = item
+    res = simulate(ClosedLoopConfig(controller=controller, load=load, trajectory="cpt", duration=duration))
+    plot = pathlib.Path(out_dir) / f"cpt_{controller}_{load}.png"
+    plot_tracking(res, plot, title=f"{controller.upper()}, CPT, load {load} (cf. JS figs. 4-5)")
+    row = res.to_dict()
+    row.update(controller=controller, load=load, plot=str(plot))
+    return row
+
+
+def cpt_table(out_dir, workers=None, duration=None, progress=True):
+    """Run SP1/SP2 x {none, max} on the CPT; return rows (dicts) in table order."""
+    from robust_drake.parallel import run_parallel
+
+    items = [(c, load, str(out_dir), duration) for load in ("none", "max") for c in ("sp1", "sp2")]
+    outcomes = run_parallel(_run_one, items, keys=[f"{c}/{l}" for c, l, _, _ in items],
+                            workers=workers, desc="CPT runs", progress=progress)
+    rows = []
+    for item, o in zip(items, outcomes):
+        if o.ok:
+            row = o.value
+        else:
+            row = {"controller": item[0], "load": item[1], "error": o.error}
+        row["published"] = dict(zip(METRIC_KEYS, PUBLISHED_CPT[(item[0], item[1])]))
+        rows.append(row)
+    return rows
+
+
+def print_cpt_table(rows):
+    header = ["table", "algorithm", *[k for k in METRIC_KEYS]]
+    body = []
+    for r in rows:
+        tab = "2 (no load)" if r["load"] == "none" else "3 (load)"
+        if "error" in r:
+            body.append([tab, r["controller"].upper(), *(["FAILED"] * 6)])
+            continue
+        body.append([tab, r["controller"].upper() + " sim", *[f"{r[k]:.3g}" for k in METRIC_KEYS]])
+        body.append(["", "   paper", *[f"{r['published'][k]:.3g}" for k in METRIC_KEYS]])
+    print("CPT (JS eq. 48), no friction compensation; joint errors in rad, task-space errors in m")
+    print(format_table(body, header))
+
+
+def run(args) -> int:
+    out = pathlib.Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    rows = cpt_table(out, workers=args.workers, duration=args.duration, progress=not args.json)
+    if args.json:
+        print_json({"cpt": rows})
+    else:
+        print_cpt_table(rows)
+        print(f"plots written to {out}/")
+    return 0 if all("error" not in r for r in rows) else 1

@@ -1,0 +1,57 @@
+"""``robust-drake simulate``: one closed loop, the six error criteria of JS section 4."""
+
+from __future__ import annotations
+
+from robust_drake.cli import add_output_flags, format_table, print_json
+from robust_drake.errors import RobustDrakeError
+from robust_drake.metrics import METRIC_KEYS
+
+
+def register(sub):
+    p = sub.add_parser("simulate", help="run one closed loop and print the JS error criteria",
+                       description="Run one closed loop (plant + friction + encoder + observer + controller "
+                                   "+ saturation) and print |error_n|, maxerr_n, |error_task|, maxerr_task "
+                                   "(Jaritz & Spong eqs. 55, 56, 58, 59).")
+    p.add_argument("--robot", default="d2r2", help="robot name in models/ or a URDF path (default d2r2)")
+    p.add_argument("--load", default="none", help="load variant: none | max (default none)")
+    p.add_argument("--controller", default="sp1", help="controller name (pd, sp1, sp2, ...; default sp1)")
+    p.add_argument("--trajectory", default="cpt", help="cpt | circle | refmodel | sine | step | line (default cpt)")
+    p.add_argument("--observer", default="averaging", help="velocity estimator (default averaging, JS eqs. 64/66)")
+    p.add_argument("--rate", type=float, default=2500.0, help="controller/observer sample rate [Hz] (default 2500)")
+    p.add_argument("--duration", type=float, default=None, help="simulated time [s] (default: the trajectory's)")
+    p.add_argument("--skip", type=float, default=None,
+                   help="ignore the first SKIP s in the metrics (default 0; 1 s for the circle as in JS section 10)")
+    p.add_argument("--friction-compensation", action="store_true", help="add the fixed compensation of JS eqs. 89-90")
+    add_output_flags(p, plot="FILE")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from robust_drake.diagram import ClosedLoopConfig, simulate
+
+    if not args.rate > 0:
+        raise RobustDrakeError(f"--rate must be positive (got {args.rate})")
+    skip = args.skip if args.skip is not None else (1.0 if args.trajectory == "circle" else 0.0)
+    cfg = ClosedLoopConfig(robot=args.robot, load=args.load, controller=args.controller,
+                           trajectory=args.trajectory, observer=args.observer, rate=args.rate,
+                           duration=args.duration, metrics_skip=skip,
+                           friction_compensation=args.friction_compensation)
+    res = simulate(cfg)
+    if args.plot:
+        from robust_drake.plotting import plot_tracking
+
+        plot_tracking(res, args.plot, title=f"{args.controller} / {args.trajectory} / load {args.load}")
+    out = res.to_dict()
+    out.update(robot=args.robot, load=args.load, controller=args.controller, trajectory=args.trajectory,
+               rate=args.rate)
+    if args.json:
+        print_json(out)
+    else:
+        print(f"{args.controller} on {args.robot} (load {args.load}), {args.trajectory}, {args.rate:g} Hz, "
+              f"{res.sim_seconds:.2f} s simulated in {res.wall_seconds:.2f} s"
+              + ("  ** DIVERGED **" if res.diverged else ""))
+        print(format_table([[out[k] for k in METRIC_KEYS]],
+                           ["|error1| rad", "maxerr1 rad", "|error2| rad", "maxerr2 rad", "|error_task| m", "maxerr_task m"]))
+        if args.plot:
+            print(f"plot: {args.plot}")
+    return 1 if res.diverged else 0
