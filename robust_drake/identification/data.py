@@ -18,7 +18,10 @@ Velocity / acceleration convention (one convention, applied everywhere)
        positions; ``qdd`` = central difference of ``qd``;
     3. filtering both sides of tau = Y(q, qd, qdd) theta identically keeps the linear model
        consistent (the filter commutes with the linear map up to the nonlinearity of Y, which
-       is small below the cut-off).
+       is small below the cut-off);
+    4. the first and last ``2 / cutoff_hz`` seconds of every file are cut after filtering
+       (start-up transients of the filter and of torque steps at t = 0; ``trim_s`` overrides);
+       the number of cut samples is recorded in ``FilterSettings.trim_samples``.
     Velocities given in a canonical CSV (``qd*``, ``qdd*``) are used as given when
     ``use_given_derivatives=True``; otherwise they are recomputed by the convention above.
 
@@ -60,6 +63,9 @@ class FilterSettings:
     order: int = DEFAULT_FILTER_ORDER
     method: str = "zero-phase Butterworth (filtfilt) on q and tau, central differences for qd, qdd"
     derivatives: str = "computed"  # or "given" (from qd*/qdd* columns)
+    #: samples cut at *each* end of every file after filtering (filter start-up transients;
+    #: default = 2 / cutoff seconds); reported, never silent
+    trim_samples: int = 0
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -309,7 +315,7 @@ def validate_raw(raw: RawData, n_joints: int | None = None, allow_degrees: bool 
             f"largest gap {dt.max():.4g} s at t={raw.t[int(np.argmax(dt))]:.4g}; resample to a "
             "uniform grid or split the file at the gap"
         )
-    if jitter > 0.01:
+    if jitter > 0.05:
         warns.append(f"{os.path.basename(src)}: sampling jitter std(dt)/mean(dt) = {jitter:.3f}")
     span = np.ptp(raw.q, axis=0)
     for i in range(raw.n):
@@ -362,6 +368,7 @@ def prepare(
     n_joints: int | None = None,
     use_given_derivatives: bool = False,
     allow_degrees: bool = False,
+    trim_s: float | None = None,
 ) -> IdentData:
     """Validate, filter and differentiate one or more files into one :class:`IdentData`."""
     raws = raw if isinstance(raw, (list, tuple)) else [raw]
@@ -382,9 +389,17 @@ def prepare(
             qd = differentiate(r.t, q)
             qdd = differentiate(r.t, qd)
             fs = FilterSettings(cutoff_hz=cutoff_hz, order=order)
+        trim = trim_s if trim_s is not None else (2.0 / cutoff_hz if (cutoff_hz and not given) else 0.0)
+        m = int(round(trim / dt))
+        if len(r.t) - 2 * m < MIN_SAMPLES:
+            raise DataError(f"{r.source}: too short ({len(r.t)} samples) to trim {m} filter start-up "
+                            "samples at each end; record longer or pass a smaller trim")
+        fs.trim_samples = m
+        keep = slice(m, len(r.t) - m)
         parts.append(IdentData(
-            t=r.t.copy(), q=q, qd=qd, qdd=qdd, tau=tau, dt=dt, robot=robot, sources=[r.source],
-            filter=fs, segment=np.full(len(r.t), k), jitter=stats["jitter"], warnings=stats["warnings"],
+            t=r.t[keep].copy(), q=q[keep], qd=qd[keep], qdd=qdd[keep], tau=tau[keep], dt=dt, robot=robot,
+            sources=[r.source], filter=fs, segment=np.full(len(r.t) - 2 * m, k), jitter=stats["jitter"],
+            warnings=stats["warnings"],
         ))
     data = IdentData.concatenate(parts) if len(parts) > 1 else parts[0]
     for w in data.warnings:
@@ -395,14 +410,14 @@ def prepare(
 def load(
     paths, robot: str | None = None, n_joints: int | None = None, torque: str = "tau_meas",
     cutoff_hz: float | None = DEFAULT_CUTOFF_HZ, order: int = DEFAULT_FILTER_ORDER,
-    use_given_derivatives: bool = False, allow_degrees: bool = False,
+    use_given_derivatives: bool = False, allow_degrees: bool = False, trim_s: float | None = None,
 ) -> IdentData:
     """Read + validate + filter one path or a list of paths (canonical or DFKI)."""
     if isinstance(paths, (str, os.PathLike)):
         paths = [paths]
     raws = [read_csv(p, torque=torque) for p in paths]
     return prepare(raws, cutoff_hz=cutoff_hz, order=order, robot=robot, n_joints=n_joints,
-                   use_given_derivatives=use_given_derivatives, allow_degrees=allow_degrees)
+                   use_given_derivatives=use_given_derivatives, allow_degrees=allow_degrees, trim_s=trim_s)
 
 
 def from_arrays(t, q, tau, qd=None, qdd=None, robot=None, cutoff_hz=DEFAULT_CUTOFF_HZ,

@@ -1,0 +1,183 @@
+"""(Weighted) least squares on the Drake-derived base parameters plus friction and effect columns.
+
+The model is linear in its parameters (Gautier & Khalil; JS eq. 15 for the closed form)::
+
+    tau = Y(q, qd, qdd) theta + e,   Y = [Y_rb | Y_fric | Y_effect_1 | ...]   (N, n, p)
+
+``Y_rb`` are the identifiable base-parameter columns of the URDF given with ``--robot``
+(``robust_drake.regressor.InverseDynamicsRegressor``), ``Y_fric`` one Coulomb (sign qd_i) and one
+viscous (qd_i) column per joint (the baseline), effect columns come from
+``robust_drake.identification.effects``.
+
+Convention ("parallel filtering"): every column is passed through the same zero-phase filter as
+the measured torque (``data.zero_phase_lowpass``), per file segment, so a discontinuous column
+(sign qd) sees exactly the smoothing the filtered torque saw. Least squares stacks the joints
+(row = one joint at one sample).
+
+Weighted LS: rows of joint j are weighted by 1 / sigma_j, sigma_j estimated from the OLS residual
+of that joint (two-step WLS). Standard errors: cov(theta) = (A^T W A)^-1 with W = diag(1/sigma_j^2)
+(after weighting the residual has unit variance). The condition number is that of the regressor
+with unit-norm columns (so units do not count); parameters whose direction lies in a numerically
+null singular subspace are reported as unidentifiable (poor excitation).
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from robust_drake.errors import DataError
+from robust_drake.identification.data import DataWarning, IdentData, zero_phase_lowpass
+
+#: singular values below RANK_TOL * s_max (unit-norm columns) count as unidentifiable directions
+RANK_TOL = 1e-6
+#: condition number above which the excitation is called poor (warning)
+COND_WARN = 1e4
+
+
+def friction_columns(data: IdentData) -> tuple[np.ndarray, list[str]]:
+    """Baseline friction columns: Coulomb ``sign(qd_i)`` and viscous ``qd_i`` per joint."""
+    N, n = data.qd.shape
+    Y = np.zeros((N, n, 2 * n))
+    names = []
+    for i in range(n):
+        Y[:, i, 2 * i] = np.sign(data.qd[:, i])
+        Y[:, i, 2 * i + 1] = data.qd[:, i]
+        names += [f"fc{i + 1}", f"fv{i + 1}"]
+    return Y, names
+
+
+def parallel_filter(data: IdentData, Y: np.ndarray) -> np.ndarray:
+    """Apply the torque's zero-phase filter to regressor columns, segment by segment."""
+    cutoff = data.filter.cutoff_hz
+    if cutoff is None or data.filter.derivatives == "given":
+        return Y
+    out = np.empty_like(Y)
+    for s in np.unique(data.segment):
+        m = data.segment == s
+        block = Y[m]
+        out[m] = zero_phase_lowpass(block.reshape(block.shape[0], -1), data.dt, cutoff,
+                                    data.filter.order).reshape(block.shape)
+    return out
+
+
+@dataclass
+class LSResult:
+    theta: np.ndarray
+    names: list[str]
+    se: np.ndarray  # standard errors (inf where unidentifiable)
+    sigma: np.ndarray  # residual std per joint
+    weights: np.ndarray  # row weight per joint (1 = OLS)
+    cond: float
+    rank: int
+    unidentifiable: list[str]
+    residual: np.ndarray  # (N, n) unweighted
+    rms: np.ndarray  # (n,)
+    N: int
+    rss_weighted: float
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def p(self) -> int:
+        return len(self.theta)
+
+    def predict(self, Y: np.ndarray) -> np.ndarray:
+        return Y @ self.theta
+
+    def as_dict(self) -> dict:
+        return {
+            "parameters": {k: float(v) for k, v in zip(self.names, self.theta)},
+            "standard_errors": {k: float(v) for k, v in zip(self.names, self.se)},
+            "condition_number": float(self.cond), "rank": int(self.rank),
+            "unidentifiable": list(self.unidentifiable),
+            "rms": [float(x) for x in self.rms], "weights": [float(x) for x in self.weights],
+        }
+
+
+def identifiability(A: np.ndarray, names: list[str], tol: float = RANK_TOL):
+    """Condition number of the column-normalised regressor and unidentifiable parameters.
+
+    ``A`` is the stacked (rows, p) regressor. Returns ``(cond, rank, unidentifiable_names, scale)``.
+    """
+    scale = np.linalg.norm(A, axis=0)
+    zero = scale == 0.0
+    scale_safe = np.where(zero, 1.0, scale)
+    s, Vt = np.linalg.svd(A / scale_safe, full_matrices=False)[1:]
+    smax = s[0] if s.size else 0.0
+    small = s < tol * smax
+    rank = int(np.sum(~small))
+    cond = float(smax / s[-1]) if s.size and s[-1] > 0 else float("inf")
+    bad = set(np.nonzero(zero)[0].tolist())
+    for k in np.nonzero(small)[0]:
+        v = np.abs(Vt[k])
+        bad.update(np.nonzero(v > 0.2 * v.max())[0].tolist())
+    return cond, rank, [names[i] for i in sorted(bad)], scale_safe
+
+
+def solve_ls(Y: np.ndarray, tau: np.ndarray, names: list[str], weights=None,
+             tol: float = RANK_TOL, warn: bool = True) -> LSResult:
+    """Least squares ``tau ~ Y theta`` (joints stacked), optional per-joint row weights.
+
+    Rank-deficient problems are solved in the minimum-norm sense on the identifiable subspace
+    (truncated SVD); the unidentifiable parameters are named and get ``se = inf``.
+    """
+    Y = np.asarray(Y, float)
+    tau = np.asarray(tau, float)
+    N, n, p = Y.shape
+    if len(names) != p:
+        raise ValueError(f"{p} columns but {len(names)} names")
+    w = np.ones(n) if weights is None else np.asarray(weights, float)
+    A = (Y * w[None, :, None]).reshape(N * n, p)
+    b = (tau * w[None, :]).reshape(N * n)
+    cond, rank, unident, scale = identifiability(A, names, tol)
+    U, s, Vt = np.linalg.svd(A / scale, full_matrices=False)
+    keep = s >= tol * s[0]
+    sinv = np.where(keep, 1.0 / np.where(keep, s, 1.0), 0.0)
+    theta = (Vt.T * sinv) @ (U.T @ b) / scale
+    r_w = b - A @ theta
+    dof = max(N * n - rank, 1)
+    s2 = float(r_w @ r_w) / dof
+    cov = (Vt.T * sinv**2) @ Vt / np.outer(scale, scale) * s2
+    se = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    unident_idx = [names.index(u) for u in unident]
+    se[unident_idx] = np.inf
+    resid = tau - Y @ theta
+    msgs = []
+    if cond > COND_WARN or unident:
+        msgs.append(
+            f"poor excitation: condition number {cond:.3g} of the (column-normalised) regressor"
+            + (f"; unidentifiable parameters: {', '.join(unident)}" if unident else "")
+        )
+        if warn:
+            warnings.warn(msgs[-1], DataWarning, stacklevel=2)
+    return LSResult(
+        theta=theta, names=list(names), se=se, sigma=np.sqrt(np.mean(resid**2, axis=0)), weights=w,
+        cond=cond, rank=rank, unidentifiable=unident, residual=resid,
+        rms=np.sqrt(np.mean(resid**2, axis=0)), N=N, rss_weighted=float(r_w @ r_w), warnings=msgs,
+    )
+
+
+def solve_wls(Y, tau, names, iterations: int = 2, tol: float = RANK_TOL, warn: bool = True) -> LSResult:
+    """Two-step weighted LS: OLS, then rows of joint j weighted by 1 / sigma_j (repeated)."""
+    res = solve_ls(Y, tau, names, tol=tol, warn=warn)
+    for _ in range(iterations):
+        sigma = np.maximum(res.rms, 1e-9 * max(res.rms.max(), 1e-300))
+        res = solve_ls(Y, tau, names, weights=1.0 / sigma, tol=tol, warn=False)
+    return res
+
+
+def rigid_body_columns(regressor, data: IdentData) -> tuple[np.ndarray, list[str]]:
+    """Drake-derived base-parameter columns ``(N, n, p_base)`` and their names."""
+    Y = np.asarray(regressor.evaluate(data.q, data.qd, data.qdd), float)
+    if Y.ndim != 3 or Y.shape[:2] != data.q.shape:
+        raise DataError(f"regressor returned shape {Y.shape}, expected ({data.N}, {data.n}, p)")
+    return Y, list(regressor.base_names)
+
+
+def load_regressor(robot):
+    """The Drake-derived base-parameter regressor of a robot name in ``models/`` or a URDF path."""
+    from robust_drake.regressor import InverseDynamicsRegressor
+
+    return InverseDynamicsRegressor.from_robot(robot)

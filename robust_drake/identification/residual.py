@@ -1,0 +1,210 @@
+"""Residual analysis: r = tau_measured - Y theta_hat against the state, time and frequency.
+
+Tests (all on the parallel-filtered residual, whose samples are correlated over 1 / (2 f_c);
+every significance level uses the effective sample count N_eff = N * 2 f_c dt):
+
+- **state dependence** (correlation ratio): for each joint's residual r_j and each explanatory
+  variable x in {q_i, qd_i, sign(qd_i), qdd_i, tau_i, t}, bin x into quantile bins and compute
+  eta^2 = var(bin means of r_j) / var(r_j), the share of the residual variance that a
+  (nonlinear, arbitrary) function of x explains. F = eta^2/(k-1) / ((1-eta^2)/(N_eff-k)).
+  Significant structure: eta^2 >= ``ETA_MIN`` and p < ``ALPHA``.
+- **whiteness**: Ljung-Box Q on the residual decimated to the filter's Nyquist rate
+  (step = 1 / (2 f_c dt)), ``LAGS`` lags. Reported; strong colour (lag-1 autocorrelation above
+  ``RHO_MAX`` at that rate and p < ALPHA) also counts as structure.
+- **velocity reversals**: the mean residual in a +-``REVERSAL_WINDOW`` window around every zero
+  crossing of qd_i (where stiction, backlash and Stribeck effects live), for plots and reports.
+- **spectrum**: Welch PSD of each joint's residual, with its largest peak.
+
+``unexplained_structure`` is true when any of these flags remains after selection; ``where``
+names the joint and variable(s) that carry it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from robust_drake.identification.data import IdentData
+
+ETA_MIN = 0.05
+ALPHA = 1e-3
+BINS = 12
+LAGS = 10
+RHO_MAX = 0.5
+REVERSAL_WINDOW = 0.1  # s
+
+
+def _decimation(data: IdentData) -> int:
+    fc = data.filter.cutoff_hz
+    if fc is None:
+        return 1
+    return max(1, int(round(1.0 / (2.0 * fc * data.dt))))
+
+
+def explanatory_variables(data: IdentData) -> dict[str, np.ndarray]:
+    out = {}
+    for i in range(data.n):
+        out[f"q{i + 1}"] = data.q[:, i]
+        out[f"qd{i + 1}"] = data.qd[:, i]
+        out[f"sign_qd{i + 1}"] = np.sign(data.qd[:, i])
+        out[f"qdd{i + 1}"] = data.qdd[:, i]
+        out[f"tau{i + 1}"] = data.tau[:, i]
+    out["t"] = data.t
+    return out
+
+
+def correlation_ratio(x: np.ndarray, r: np.ndarray, bins: int = BINS) -> tuple[float, int]:
+    """eta^2 of ``r`` given quantile bins of ``x`` (and the number of non-empty bins)."""
+    uniq = np.unique(x)
+    if len(uniq) <= bins:
+        labels = np.searchsorted(uniq, x)
+    else:
+        edges = np.quantile(x, np.linspace(0, 1, bins + 1)[1:-1])
+        labels = np.searchsorted(edges, x, side="right")
+    counts = np.bincount(labels)
+    sums = np.bincount(labels, weights=r)
+    nz = counts > 0
+    means = sums[nz] / counts[nz]
+    total = float(np.sum((r - r.mean()) ** 2))
+    if total <= 0:
+        return 0.0, int(nz.sum())
+    between = float(np.sum(counts[nz] * (means - r.mean()) ** 2))
+    return between / total, int(nz.sum())
+
+
+def state_dependence(data: IdentData, residual: np.ndarray, bins: int = BINS) -> list[dict]:
+    """eta^2 and its p-value for every (residual joint, variable) pair, strongest first."""
+    from scipy.stats import f as fdist
+
+    n_eff = max(float(data.N) / _decimation(data), bins + 2.0)
+    rows = []
+    for j in range(residual.shape[1]):
+        for name, x in explanatory_variables(data).items():
+            eta2, k = correlation_ratio(x, residual[:, j], bins)
+            if k < 2:
+                continue
+            F = (eta2 / (k - 1)) / max((1 - eta2) / (n_eff - k), 1e-300)
+            rows.append({"joint": j, "variable": name, "eta2": eta2, "p": float(fdist.sf(F, k - 1, n_eff - k))})
+    rows.sort(key=lambda d: -d["eta2"])
+    return rows
+
+
+def ljung_box(x: np.ndarray, lags: int = LAGS) -> tuple[float, float, float]:
+    """(Q, p, rho_1) of the Ljung-Box test."""
+    from scipy.stats import chi2
+
+    x = x - x.mean()
+    n = len(x)
+    denom = float(x @ x)
+    if denom <= 0 or n <= lags + 1:
+        return 0.0, 1.0, 0.0
+    rho = np.array([float(x[:-k] @ x[k:]) / denom for k in range(1, lags + 1)])
+    Q = n * (n + 2) * float(np.sum(rho**2 / (n - np.arange(1, lags + 1))))
+    return Q, float(chi2.sf(Q, lags)), float(rho[0])
+
+
+def whiteness(data: IdentData, residual: np.ndarray) -> list[dict]:
+    step = _decimation(data)
+    out = []
+    for j in range(residual.shape[1]):
+        parts = [residual[data.segment == s, j][::step] for s in np.unique(data.segment)]
+        # Ljung-Box per segment, combined by summing Q (independent files)
+        Qs, rhos, dof = 0.0, [], 0
+        for p in parts:
+            Q, _, r1 = ljung_box(p)
+            Qs += Q
+            rhos.append(r1)
+            dof += LAGS
+        from scipy.stats import chi2
+
+        out.append({"joint": j, "Q": Qs, "p": float(chi2.sf(Qs, dof)), "rho1": float(np.mean(rhos)),
+                    "decimation": step})
+    return out
+
+
+def reversal_profile(data: IdentData, residual: np.ndarray, joint: int, window: float = REVERSAL_WINDOW):
+    """Mean residual of every joint vs time from each zero crossing of qd_joint: (tau_axis, mean (K, n))."""
+    half = max(1, int(round(window / data.dt)))
+    qd = data.qd[:, joint]
+    idx = np.nonzero((np.sign(qd[:-1]) != np.sign(qd[1:])) & (data.segment[:-1] == data.segment[1:]))[0]
+    idx = idx[(idx >= half) & (idx < data.N - half)]
+    lag = np.arange(-half, half + 1)
+    if len(idx) == 0:
+        return lag * data.dt, np.full((len(lag), residual.shape[1]), np.nan), 0
+    sgn = np.sign(qd[idx + 1])[:, None, None]  # align: positive after the crossing
+    stack = residual[idx[:, None] + lag[None, :]] * sgn
+    return lag * data.dt, stack.mean(axis=0), len(idx)
+
+
+def spectrum(residual: np.ndarray, dt: float):
+    from scipy.signal import welch
+
+    nper = min(1024, residual.shape[0])
+    f, P = welch(residual, fs=1.0 / dt, nperseg=nper, axis=0)
+    return f, P
+
+
+def analyse(data: IdentData, residual: np.ndarray, eta_min: float = ETA_MIN, alpha: float = ALPHA) -> dict:
+    """All tests; ``unexplained_structure`` and ``where`` (joint, variable, eta2) if flagged."""
+    dep = state_dependence(data, residual)
+    white = whiteness(data, residual)
+    where = [d for d in dep if d["eta2"] >= eta_min and d["p"] < alpha]
+    coloured = [w for w in white if w["p"] < alpha and w["rho1"] > RHO_MAX]
+    f, P = spectrum(residual, data.dt)
+    peaks = [float(f[1:][np.argmax(P[1:, j])]) for j in range(residual.shape[1])]
+    rms = np.sqrt(np.mean(residual**2, axis=0))
+    return {
+        "unexplained_structure": bool(where or coloured),
+        "where": [{"joint": d["joint"], "variable": d["variable"], "eta2": round(d["eta2"], 4)} for d in where[:6]],
+        "coloured": [{"joint": w["joint"], "rho1": round(w["rho1"], 3)} for w in coloured],
+        "state_dependence_top": [{k: (round(v, 5) if isinstance(v, float) else v) for k, v in d.items()} for d in dep[:8]],
+        "whiteness": white,
+        "spectrum_peak_hz": peaks,
+        "rms": [float(x) for x in rms],
+    }
+
+
+def plot_residuals(data: IdentData, residual: np.ndarray, path: str, title: str = "residual",
+                   other: np.ndarray | None = None, labels=("before", "after")) -> str:
+    """One page per call: residual vs q, qd, qdd, tau, time, frequency and around reversals.
+
+    ``other`` (same shape) overlays a second residual (e.g. after repair) in another colour.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    n = data.n
+    series = [(residual, labels[0], "tab:red")] + ([(other, labels[1], "tab:blue")] if other is not None else [])
+    cols = ["q", "qd", "qdd", "tau", "t", "freq", "reversal"]
+    fig, axes = plt.subplots(n, len(cols), figsize=(3.0 * len(cols), 2.6 * n), squeeze=False)
+    for j in range(n):
+        for r, lab, colr in series:
+            for c, (name, x) in enumerate([("q", data.q[:, j]), ("qd", data.qd[:, j]), ("qdd", data.qdd[:, j]),
+                                           ("tau", data.tau[:, j]), ("t", data.t)]):
+                ax = axes[j, c]
+                ax.plot(x, r[:, j], ",", color=colr, alpha=0.5, label=lab)
+                # binned mean: the structure a person should look at
+                edges = np.quantile(x, np.linspace(0, 1, 21))
+                mid, mean = [], []
+                for a, b in zip(edges[:-1], edges[1:]):
+                    m = (x >= a) & (x <= b)
+                    if m.any():
+                        mid.append(0.5 * (a + b))
+                        mean.append(r[m, j].mean())
+                ax.plot(mid, mean, "-", color=colr, lw=2)
+                ax.set_xlabel(f"{name}{j + 1}" if name != "t" else "t [s]")
+            f, P = spectrum(r, data.dt)
+            axes[j, 5].semilogy(f[1:], P[1:, j], color=colr, label=lab)
+            axes[j, 5].set_xlabel("frequency [Hz]")
+            axes[j, 5].set_xlim(0, min(0.5 / data.dt, 4 * (data.filter.cutoff_hz or 25)))
+            lag, prof, k = reversal_profile(data, r, j)
+            axes[j, 6].plot(lag, prof[:, j], color=colr, label=f"{lab} ({k} reversals)")
+            axes[j, 6].set_xlabel(f"time from qd{j + 1} reversal [s]")
+        axes[j, 0].set_ylabel(f"r{j + 1} [N m]")
+        axes[j, 6].legend(fontsize=7)
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+    return path

@@ -1,0 +1,228 @@
+"""Forward selection over the effect library, judged on held-out error.
+
+Model structure: rigid-body base columns + Coulomb/viscous friction (the baseline) + the chosen
+effects' columns (``Effect.columns``). All columns are parallel-filtered like the torque.
+
+Selection (greedy forward, one effect per step)::
+
+    score(M) = blocked K-fold cross-validated error of model M on the fit data
+               (contiguous blocks of every file are held out in turn; rows weighted by the
+               baseline's 1/sigma_j so both joints count equally), normalised by the baseline's.
+
+At each step every remaining candidate is fitted; the one with the lowest score is added only if
+    1. it lowers the held-out score by at least ``min_gain`` (default 5 %) of the current score
+       (it explains a significant part of the remaining residual),
+    2. it lowers the Bayesian information criterion on the fit data, computed with the effective
+       number of independent samples N_eff = N * 2 f_c dt (the filtered residual is correlated
+       over 1 / (2 f_c); counting every sample would make any effect look significant),
+    3. its columns are identifiable next to the current model (no collinearity),
+otherwise selection stops ("stopping rule"). Shape-parameter variants (a Stribeck velocity,
+a delay) are separate candidates; once an effect of a kind/joint is chosen the other variants of
+the same kind and joint leave the pool.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from robust_drake.identification.data import IdentData
+from robust_drake.identification.least_squares import (
+    LSResult, friction_columns, identifiability, parallel_filter, rigid_body_columns, solve_ls,
+    solve_wls,
+)
+
+MIN_GAIN = 0.05
+CV_FOLDS = 4
+
+
+def effect_label(effect) -> str:
+    j = getattr(effect, "joint", None)
+    extra = ""
+    for attr in ("label",):
+        if hasattr(effect, attr) and isinstance(getattr(effect, attr), str):
+            return getattr(effect, attr)
+    shape = getattr(effect, "shape", None)
+    if shape:
+        extra = "(" + ", ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in shape.items()) + ")"
+    return f"{effect.kind}" + (f"[joint {j}]" if j is not None else "") + extra
+
+
+class ColumnCache:
+    """Parallel-filtered columns of one dataset: rigid body, friction, and each effect (memoised)."""
+
+    def __init__(self, data: IdentData, regressor):
+        self.data = data
+        Yrb, nrb = rigid_body_columns(regressor, data)
+        Yfr, nfr = friction_columns(data)
+        self.base = parallel_filter(data, np.concatenate([Yrb, Yfr], axis=2))
+        self.base_names = nrb + nfr
+        self.n_rigid = len(nrb)
+        self._effects: dict[int, tuple[np.ndarray, list[str]]] = {}
+
+    def effect(self, effect) -> tuple[np.ndarray, list[str]]:
+        key = id(effect)
+        if key not in self._effects:
+            Y, names = effect.columns(self.data)
+            Y = np.asarray(Y, float)
+            if Y.ndim == 2:
+                Y = Y[:, :, None]
+            self._effects[key] = (parallel_filter(self.data, Y), list(names))
+        return self._effects[key]
+
+    def model(self, effects) -> tuple[np.ndarray, list[str], list[slice]]:
+        blocks, names, slices = [self.base], list(self.base_names), []
+        start = self.base.shape[2]
+        for e in effects:
+            Y, nm = self.effect(e)
+            blocks.append(Y)
+            names += [f"{effect_label(e)}:{x}" for x in nm]
+            slices.append(slice(start, start + Y.shape[2]))
+            start += Y.shape[2]
+        return np.concatenate(blocks, axis=2), names, slices
+
+
+def blocked_folds(data: IdentData, k: int = CV_FOLDS) -> list[np.ndarray]:
+    """Test masks: every file cut into ``k`` contiguous blocks; fold i holds out block i of each."""
+    fold = np.zeros(data.N, dtype=int)
+    for s in np.unique(data.segment):
+        idx = np.nonzero(data.segment == s)[0]
+        fold[idx] = np.minimum((np.arange(len(idx)) * k) // len(idx), k - 1)
+    return [fold == i for i in range(k)]
+
+
+def cv_score(Y, tau, weights, folds) -> float:
+    """Mean held-out weighted squared error over blocked folds."""
+    N, n, p = Y.shape
+    total, count = 0.0, 0
+    for test in folds:
+        train = ~test
+        A = (Y[train] * weights[None, :, None]).reshape(-1, p)
+        b = (tau[train] * weights[None, :]).reshape(-1)
+        theta = np.linalg.lstsq(A, b, rcond=1e-10)[0]
+        r = (tau[test] - Y[test] @ theta) * weights[None, :]
+        total += float(np.sum(r**2))
+        count += r.size
+    return total / count
+
+
+def n_effective(data: IdentData) -> float:
+    fc = data.filter.cutoff_hz
+    if fc is None:
+        return float(data.N)
+    return float(data.N) * min(1.0, 2.0 * fc * data.dt)
+
+
+def bic(rss_w: float, rows: int, p: int, n_eff_rows: float) -> float:
+    """BIC with the likelihood scaled to the effective sample count (see module docstring)."""
+    ratio = n_eff_rows / rows
+    return n_eff_rows * np.log(rss_w / rows) + p * np.log(n_eff_rows) if rss_w > 0 else -np.inf * ratio
+
+
+@dataclass
+class Step:
+    step: int
+    label: str
+    kind: str
+    joint: int | None
+    score_before: float
+    score_after: float
+    gain: float
+    bic_before: float
+    bic_after: float
+    accepted: bool
+    reason: str
+    tried: int
+
+    def as_dict(self):
+        return dict(self.__dict__)
+
+
+@dataclass
+class SelectionResult:
+    chosen: list
+    steps: list[Step]
+    baseline_score: float
+    final_score: float
+    weights: np.ndarray
+    ranking: list[dict] = field(default_factory=list)  # last step's candidate table
+
+
+def forward_select(cache: ColumnCache, candidates: list, min_gain: float = MIN_GAIN,
+                   max_effects: int = 4, folds: int = CV_FOLDS, progress=None) -> SelectionResult:
+    """Greedy forward selection (see module docstring). ``progress(msg)`` is called per step."""
+    data = cache.data
+    tau = data.tau
+    Y0, names0, _ = cache.model([])
+    base = solve_ls(Y0, tau, names0, warn=False)
+    weights = 1.0 / np.maximum(base.rms, 1e-12)
+    fmask = blocked_folds(data, folds)
+    rows = data.N * data.n
+    n_eff_rows = n_effective(data) * data.n
+
+    def evaluate(effects):
+        Y, names, slices = cache.model(effects)
+        score = cv_score(Y, tau, weights, fmask)
+        fit = solve_ls(Y, tau, names, weights=weights, warn=False)
+        return score, bic(fit.rss_weighted, rows, fit.rank, n_eff_rows), fit, names, slices
+
+    score, b, _, _, _ = evaluate([])
+    baseline_score = score
+    chosen, steps, pool = [], [], list(candidates)
+    ranking = []
+    while pool and len(chosen) < max_effects:
+        trials = []
+        for e in pool:
+            try:
+                s_e, b_e, fit, names, slices = evaluate(chosen + [e])
+            except Exception as exc:  # an effect that cannot build columns on these data
+                trials.append((np.inf, np.inf, e, f"columns failed: {exc}"))
+                continue
+            new_names = names[slices[-1]]
+            if any(nm in fit.unidentifiable for nm in new_names):
+                trials.append((np.inf, b_e, e, "not identifiable next to the current model"))
+                continue
+            trials.append((s_e, b_e, e, ""))
+        trials.sort(key=lambda x: x[0])
+        ranking = [{"label": effect_label(e), "kind": e.kind, "joint": e.joint,
+                    "score": float(s) / baseline_score if np.isfinite(s) else None, "note": why}
+                   for s, _, e, why in trials]
+        s_best, b_best, e_best, _ = trials[0]
+        gain = (score - s_best) / score if np.isfinite(s_best) else 0.0
+        if not np.isfinite(s_best):
+            accepted, reason = False, "no identifiable candidate left"
+        elif gain < min_gain:
+            accepted, reason = False, f"held-out gain {gain:.1%} < {min_gain:.0%}: stop"
+        elif not b_best < b:
+            accepted, reason = False, f"BIC does not decrease ({b_best:.1f} >= {b:.1f}): stop"
+        else:
+            accepted, reason = True, f"held-out error -{gain:.1%}, BIC {b:.1f} -> {b_best:.1f}"
+        steps.append(Step(len(steps) + 1, effect_label(e_best), e_best.kind, e_best.joint,
+                          score / baseline_score, s_best / baseline_score if np.isfinite(s_best) else float("nan"),
+                          float(gain), float(b), float(b_best), accepted, reason, len(trials)))
+        if progress:
+            progress(f"step {len(steps)}: {effect_label(e_best)}: {reason}")
+        if not accepted:
+            break
+        chosen.append(e_best)
+        score, b = s_best, b_best
+        pool = [e for e in pool if not (e.kind == e_best.kind and e.joint == e_best.joint)]
+    return SelectionResult(chosen=chosen, steps=steps, baseline_score=baseline_score,
+                           final_score=score, weights=weights, ranking=ranking)
+
+
+def fit_model(cache: ColumnCache, effects, weighted: bool = True) -> tuple[LSResult, list[slice]]:
+    """Final (W)LS fit of baseline + effects on all fit data."""
+    Y, names, slices = cache.model(effects)
+    res = solve_wls(Y, cache.data.tau, names) if weighted else solve_ls(Y, cache.data.tau, names)
+    return res, slices
+
+
+def predict(cache: ColumnCache, effects, fit: LSResult) -> np.ndarray:
+    Y, _, _ = cache.model(effects)
+    return Y @ fit.theta
+
+
+__all__ = ["ColumnCache", "forward_select", "fit_model", "predict", "blocked_folds", "cv_score",
+           "effect_label", "identifiability", "n_effective", "bic", "Step", "SelectionResult"]
