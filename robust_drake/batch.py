@@ -1,0 +1,445 @@
+"""Batch runs of closed loops: local worker processes or Dask, results that survive crashes.
+
+:func:`run_batch` runs a list of :class:`~robust_drake.scenario.Scenario` through
+:func:`robust_drake.parallel.iter_parallel` and writes one row per scenario to Parquet as
+each finishes. Each row holds the scenario's parameters, the six JS error criteria
+(eqs. 55, 56, 58, 59: ``error1, maxerr1, error2, maxerr2, error_task, maxerr_task``), torque
+statistics per joint (``tau_peak<i>``, ``tau_rms<i>``, ``tau_tv<i>`` = total variation per
+second), ``wall_seconds``, ``build_seconds``, ``status`` (``ok`` / ``diverged`` / ``failed``)
+and ``error`` (the message, for failed or diverged runs).
+
+Crash safety. Every finished row is written at once to its own small Parquet file in
+``<out>.parts/`` (write to a temporary name, then an atomic rename); the single file
+``<out>`` is rewritten from those parts every ``flush_seconds`` and at the end (also after
+Ctrl-C), after which the parts are removed. A crash, a Ctrl-C or a killed worker loses at most
+the scenarios in flight. Rerunning the same batch skips the scenarios already recorded
+(``retry_failed=True`` reruns the failed ones). The file's metadata carries the batch
+fingerprint (:func:`robust_drake.scenario.spec_fingerprint`); a results file of a different
+batch is never overwritten unless ``force=True``.
+
+Diagram reuse. A worker keeps the last few built diagrams keyed by
+:meth:`Scenario.structure_key`; scenarios that differ only in ``true_theta``, ``duration``,
+``initial_q`` or ``seed`` (Monte Carlo draws, repeated seeds) reuse the diagram with a fresh
+context each run, so they pay the build cost once per worker.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import math
+import os
+import pathlib
+import shutil
+import socket
+import time
+import uuid
+from collections import OrderedDict
+from typing import Any, Iterable, Sequence
+
+from robust_drake.errors import RobustDrakeError
+from robust_drake.parallel import iter_parallel
+from robust_drake.scenario import Scenario, dedupe, spec_fingerprint, validate_scenarios
+
+__all__ = [
+    "METRIC_KEYS",
+    "STATUSES",
+    "run_batch",
+    "run_scenario",
+    "ResultStore",
+    "read_results",
+    "summarize",
+]
+
+METRIC_KEYS = ("error1", "maxerr1", "error2", "maxerr2", "error_task", "maxerr_task")
+STATUSES = ("ok", "diverged", "failed")
+
+#: A run whose joint error exceeds this [rad] has lost the reference: status "diverged".
+DEFAULT_DIVERGENCE_ERROR = math.pi
+
+_META_KEY = b"robust_drake.batch"
+_DICT_COLUMNS = ("controller_params", "trajectory_params", "observer_params", "tags", "extra")
+
+# ------------------------------------------------------------------------------- worker side
+
+_LOOPS: "OrderedDict[str, Any]" = OrderedDict()
+_MAX_CACHED_LOOPS = 8
+
+
+def clear_loop_cache() -> None:
+    """Forget the diagrams this process has built (tests, memory)."""
+    _LOOPS.clear()
+
+
+def _get_loop(scenario: Scenario, config, reuse: bool):
+    """(ClosedLoop, build_seconds); built diagrams are reused for equal structure keys."""
+    from robust_drake.diagram import build_closed_loop
+
+    key = scenario.structure_key()
+    if reuse and key in _LOOPS:
+        _LOOPS.move_to_end(key)
+        loop = _LOOPS[key]
+        fresh = config.resolved()
+        # Per-run fields that ClosedLoop.simulate reads from its config.
+        for name in ("true_theta", "initial_q", "duration", "metrics_skip", "metrics_dt"):
+            if hasattr(fresh, name):
+                setattr(loop.config, name, getattr(fresh, name))
+        return loop, 0.0
+    t0 = time.perf_counter()
+    loop = build_closed_loop(config)
+    if hasattr(loop, "_finish"):  # Diagram.Build() happens lazily; count it as build time
+        loop._finish()
+    build = time.perf_counter() - t0
+    if reuse:
+        _LOOPS[key] = loop
+        while len(_LOOPS) > _MAX_CACHED_LOOPS:
+            _LOOPS.popitem(last=False)
+    return loop, build
+
+
+def _torque_columns(torque_stats: dict) -> dict:
+    out = {}
+    for src, dst in (("tau_peak", "tau_peak"), ("tau_rms", "tau_rms"), ("tau_tv_per_s", "tau_tv")):
+        vals = torque_stats.get(src)
+        if vals is None:
+            continue
+        for j, v in enumerate(vals):
+            out[f"{dst}{j + 1}"] = float(v)
+    return out
+
+
+def run_scenario(scenario: Scenario | dict, *, reuse: bool = True,
+                 divergence_error: float = DEFAULT_DIVERGENCE_ERROR) -> dict:
+    """Run one scenario in this process and return its result row (never raises for a
+    failing or diverging simulation; the row says so)."""
+    if isinstance(scenario, dict):
+        scenario = Scenario.from_dict(scenario)
+    row = scenario_columns(scenario)
+    row.update({k: math.nan for k in METRIC_KEYS})
+    row.update(status="failed", error=None, build_seconds=0.0, sim_seconds=0.0,
+               worker=f"{socket.gethostname()}:{os.getpid()}")
+    t0 = time.perf_counter()
+    try:
+        config = scenario.to_config()
+        loop, build = _get_loop(scenario, config, reuse)
+        row["build_seconds"] = build
+        res = loop.simulate(None if scenario.duration is None else float(scenario.duration))
+        row.update({k: float(res.metrics.get(k, math.nan)) for k in METRIC_KEYS})
+        row.update(_torque_columns(res.torque_stats or {}))
+        row["sim_seconds"] = float(res.sim_seconds)
+        n = res.q.shape[1] if res.q.ndim == 2 else 0
+        max_joint_err = max((row.get(f"maxerr{j + 1}", math.nan) for j in range(min(n, 2))),
+                            default=math.nan)
+        if n > 2:  # metrics only name two joints; check all of them
+            import numpy as np
+
+            max_joint_err = float(np.max(np.abs(res.q - res.q_d)))
+        if res.diverged:
+            row["status"] = "diverged"
+            row["error"] = (f"simulation diverged at t = {row['sim_seconds']:.4g} s "
+                            "(non-finite state, |q| or |v| beyond the builder's limit, or an "
+                            "integrator failure)")
+        elif max_joint_err > divergence_error:
+            row["status"] = "diverged"
+            row["error"] = (f"tracking lost: max joint error {max_joint_err:.3g} rad > "
+                            f"{divergence_error:.3g} rad")
+        else:
+            row["status"] = "ok"
+    except Exception as exc:  # noqa: BLE001 - recorded in the row, the batch continues
+        from robust_drake.parallel import _summarise
+
+        row["status"] = "failed"
+        row["error"] = _summarise(exc)[0]
+    row["wall_seconds"] = time.perf_counter() - t0
+    row["finished_at"] = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+    return row
+
+
+def _task(item: tuple) -> dict:
+    """Worker entry point (module level so it pickles): item = (scenario dict, options)."""
+    scenario_dict, options = item
+    return run_scenario(scenario_dict, **options)
+
+
+def scenario_columns(s: Scenario) -> dict:
+    """The parameter columns of a result row (dicts as JSON text)."""
+    d = s.to_dict()
+    row = {"scenario_id": s.id, "name": s.name}
+    for k, v in d.items():
+        if k in _DICT_COLUMNS:
+            row[k] = json.dumps(v, sort_keys=True)
+        elif k == "true_theta":
+            row[k] = None if v is None else [float(x) for x in v]
+        else:
+            row[k] = v
+    row["rate"] = float(row["rate"])
+    row["duration"] = math.nan if row["duration"] is None else float(row["duration"])
+    row["draw"] = -1 if row["draw"] is None else int(row["draw"])
+    return row
+
+
+def _failed_row(s: Scenario, error: str, wall: float) -> dict:
+    row = scenario_columns(s)
+    row.update({k: math.nan for k in METRIC_KEYS})
+    row.update(status="failed", error=error, build_seconds=0.0, sim_seconds=0.0,
+               wall_seconds=float(wall), worker=None,
+               finished_at=_dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"))
+    return row
+
+
+# ------------------------------------------------------------------------------- storage
+
+
+def _rows_frame(rows: list[dict]):
+    import pandas as pd
+
+    df = pd.DataFrame(rows)
+    if "true_theta" in df:
+        df["true_theta"] = df["true_theta"].astype(object)
+    return df
+
+
+class ResultStore:
+    """Incremental, crash-safe Parquet results for one batch (see the module docstring)."""
+
+    def __init__(self, path: str | os.PathLike, fingerprint: str, spec: Any = None,
+                 force: bool = False):
+        self.path = pathlib.Path(path)
+        if self.path.suffix != ".parquet":
+            raise RobustDrakeError(f"results file must end in .parquet (got {self.path})")
+        self.parts = self.path.with_name(self.path.name + ".parts")
+        self.fingerprint = fingerprint
+        self.spec = spec
+        self._last_flush = time.monotonic()
+        existing = self._existing_fingerprint()
+        if existing is not None and existing != fingerprint:
+            if not force:
+                raise RobustDrakeError(
+                    f"{self.path} holds results of a different batch (fingerprint {existing}, "
+                    f"this batch {fingerprint}); choose another --out or pass --force to "
+                    "overwrite it")
+        if force:  # start over, whatever the file held
+            self._remove_all()
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.parts.mkdir(exist_ok=True)
+        (self.parts / "_batch.json").write_text(json.dumps(
+            {"fingerprint": fingerprint, "spec": spec}, default=str))
+
+    # -- reading
+    def _existing_fingerprint(self) -> str | None:
+        fps = []
+        if self.path.exists():
+            fps.append(_file_fingerprint(self.path))
+        meta = self.parts / "_batch.json"
+        if meta.exists():
+            try:
+                fps.append(json.loads(meta.read_text()).get("fingerprint"))
+            except Exception:  # a torn write: treat as unknown
+                fps.append("unreadable")
+        fps = [f for f in fps if f is not None]
+        if not fps:
+            return None
+        return fps[0]
+
+    def read(self):
+        """All rows recorded so far (main file + parts), last row per scenario."""
+        import pandas as pd
+        import pyarrow.parquet as pq
+
+        frames = []
+        if self.path.exists():
+            frames.append(pq.read_table(self.path).to_pandas())
+        if self.parts.exists():
+            for f in sorted(self.parts.glob("*.parquet")):
+                try:
+                    frames.append(pq.read_table(f).to_pandas())
+                except Exception:  # pragma: no cover - a torn part cannot exist (rename)
+                    continue
+        if not frames:
+            return pd.DataFrame()
+        df = pd.concat(frames, ignore_index=True, sort=False)
+        return df.drop_duplicates("scenario_id", keep="last").reset_index(drop=True)
+
+    # -- writing
+    def append(self, row: dict) -> None:
+        """Persist one finished row now (atomic small file)."""
+        name = f"{time.time_ns():020d}-{row['scenario_id']}-{uuid.uuid4().hex[:6]}.parquet"
+        _write_parquet(_rows_frame([row]), self.parts / name, self._metadata())
+
+    def maybe_flush(self, every: float) -> None:
+        if time.monotonic() - self._last_flush >= every:
+            self.flush()
+
+    def flush(self, final: bool = False) -> None:
+        """Rewrite the single results file from file + parts; drop the merged parts."""
+        parts = sorted(self.parts.glob("*.parquet")) if self.parts.exists() else []
+        df = self.read()
+        if len(df):
+            _write_parquet(df, self.path, self._metadata())
+        for f in parts:
+            f.unlink(missing_ok=True)
+        if final and self.parts.exists():
+            shutil.rmtree(self.parts, ignore_errors=True)
+        self._last_flush = time.monotonic()
+
+    def _metadata(self) -> dict:
+        return {_META_KEY: json.dumps({"fingerprint": self.fingerprint, "spec": self.spec},
+                                      default=str).encode()}
+
+    def _remove_all(self) -> None:
+        if self.path.exists():
+            self.path.unlink()
+        if self.parts.exists():
+            shutil.rmtree(self.parts)
+
+
+def _write_parquet(df, path: pathlib.Path, metadata: dict) -> None:
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    table = pa.Table.from_pandas(df, preserve_index=False)
+    meta = dict(table.schema.metadata or {})
+    meta.update(metadata)
+    table = table.replace_schema_metadata(meta)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    pq.write_table(table, tmp)
+    os.replace(tmp, path)
+
+
+def _file_fingerprint(path: pathlib.Path) -> str | None:
+    import pyarrow.parquet as pq
+
+    try:
+        meta = pq.read_schema(path).metadata or {}
+    except Exception:
+        return "not-a-robust-drake-results-file"
+    raw = meta.get(_META_KEY)
+    if raw is None:
+        return "not-a-robust-drake-results-file"
+    return json.loads(raw).get("fingerprint")
+
+
+def read_results(path: str | os.PathLike):
+    """Read a results file (and any parts of an interrupted run) as a DataFrame."""
+    path = pathlib.Path(path)
+    if not path.exists() and not path.with_name(path.name + ".parts").exists():
+        raise RobustDrakeError(f"no results at {path}")
+    store = ResultStore.__new__(ResultStore)
+    store.path, store.parts = path, path.with_name(path.name + ".parts")
+    return store.read()
+
+
+# ------------------------------------------------------------------------------- the batch
+
+
+def run_batch(
+    scenarios: Iterable[Scenario | dict],
+    *,
+    out: str | os.PathLike | None = None,
+    workers: int | None = None,
+    scheduler: Any = None,
+    force: bool = False,
+    retry_failed: bool = False,
+    progress: bool = True,
+    reuse: bool = True,
+    divergence_error: float = DEFAULT_DIVERGENCE_ERROR,
+    spec: Any = None,
+    flush_seconds: float = 10.0,
+    validate: bool = True,
+    on_row=None,
+):
+    """Run every scenario (in parallel) and return a pandas DataFrame, one row each.
+
+    Parameters
+    ----------
+    scenarios : Scenario objects or dicts of Scenario fields. Duplicates run once.
+    out : Parquet results file; written incrementally, resumed on rerun (None: memory only).
+    workers : local worker processes (default: the core count; 1 runs in this process).
+    scheduler : Dask scheduler address ``"tcp://host:8786"`` or a ``distributed.Client``.
+    force : overwrite ``out`` even if it holds another batch's results.
+    retry_failed : rerun scenarios recorded as ``failed`` (``diverged`` ones are results).
+    reuse : reuse built diagrams within a worker for scenarios of equal structure.
+    divergence_error : joint error [rad] beyond which a run counts as diverged.
+    spec : the spec document to record in the file's metadata (the CLI passes the YAML).
+    on_row : optional callback ``f(row_dict)`` called in this process for each new row.
+
+    Returns
+    -------
+    DataFrame in the order of ``scenarios`` (rows found in ``out`` included). Attributes
+    ``df.attrs["ran"]``, ``df.attrs["skipped"]``, ``df.attrs["fingerprint"]``.
+    """
+    import pandas as pd
+
+    scenarios = dedupe(s if isinstance(s, Scenario) else Scenario.from_dict(s) for s in scenarios)
+    if validate:
+        validate_scenarios(scenarios)
+    fingerprint = spec_fingerprint(scenarios)
+    store = ResultStore(out, fingerprint, spec, force=force) if out is not None else None
+    previous = store.read() if store is not None else pd.DataFrame()
+    done_rows: dict[str, dict] = {}
+    if len(previous):
+        skip_status = {"ok", "diverged"} if retry_failed else set(STATUSES)
+        for rec in previous.to_dict("records"):
+            if rec.get("status") in skip_status:
+                done_rows[rec["scenario_id"]] = rec
+    todo = [s for s in scenarios if s.id not in done_rows]
+    by_id = {s.id: s for s in todo}
+    options = {"reuse": reuse, "divergence_error": float(divergence_error)}
+    new_rows: dict[str, dict] = {}
+    t0 = time.perf_counter()
+    interrupted = False
+    try:
+        if todo:
+            items = [(s.to_dict(), options) for s in todo]
+            for outcome in iter_parallel(_task, items, keys=[s.id for s in todo], workers=workers,
+                                         scheduler=scheduler, desc="batch", progress=progress):
+                if outcome.ok:
+                    row = outcome.value
+                else:  # the worker died or the task could not run at all
+                    row = _failed_row(by_id[outcome.key], outcome.error, outcome.wall_seconds)
+                new_rows[row["scenario_id"]] = row
+                if store is not None:
+                    store.append(row)
+                    store.maybe_flush(flush_seconds)
+                if on_row is not None:
+                    on_row(row)
+    except KeyboardInterrupt:
+        interrupted = True
+        raise
+    finally:
+        if store is not None:
+            store.flush(final=not interrupted and len(new_rows) == len(todo))
+    rows = []
+    for s in scenarios:
+        r = new_rows.get(s.id) or done_rows.get(s.id)
+        if r is not None:
+            rows.append(r)
+    df = _rows_frame(rows) if rows else pd.DataFrame()
+    df.attrs.update(ran=len(new_rows), skipped=len(scenarios) - len(todo),
+                    fingerprint=fingerprint, wall_seconds=time.perf_counter() - t0)
+    return df
+
+
+def summarize(df, by: Sequence[str] = ("controller",), metric: str = "maxerr_task"):
+    """Per-group counts by status and percentiles/worst of ``metric`` over ok runs."""
+    import numpy as np
+    import pandas as pd
+
+    if df is None or len(df) == 0:
+        return pd.DataFrame()
+    by = [b for b in by if b in df.columns]
+    out = []
+    for key, g in df.groupby(by, sort=True, dropna=False):
+        key = key if isinstance(key, tuple) else (key,)
+        ok = g[g["status"] == "ok"][metric].astype(float).dropna()
+        rec = dict(zip(by, key))
+        rec.update(runs=len(g), ok=int((g["status"] == "ok").sum()),
+                   diverged=int((g["status"] == "diverged").sum()),
+                   failed=int((g["status"] == "failed").sum()))
+        if len(ok):
+            rec.update({"p50": float(np.percentile(ok, 50)), "p90": float(np.percentile(ok, 90)),
+                        "p99": float(np.percentile(ok, 99)), "worst": float(ok.max())})
+        else:
+            rec.update(p50=math.nan, p90=math.nan, p99=math.nan, worst=math.nan)
+        out.append(rec)
+    return pd.DataFrame(out)

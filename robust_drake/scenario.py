@@ -1,0 +1,454 @@
+"""Scenarios: small, serialisable descriptions of one closed loop, and batch specs.
+
+A :class:`Scenario` holds plain data only (strings, numbers, lists, dicts), so it pickles to
+worker processes and Dask workers and hashes to a stable id. ``Scenario.to_config()`` turns it
+into a :class:`robust_drake.diagram.ClosedLoopConfig`.
+
+A batch spec is a YAML or CSV file:
+
+* YAML, product form: scalar defaults plus list-valued keys among ``robot``, ``trajectory``,
+  ``controllers``, ``loads``, ``rates``, ``observers``, ``friction_compensation``, ``seeds``,
+  expanded to every combination::
+
+      robot: d2r2
+      trajectory: cpt
+      duration: 0.5
+      controllers: [pd, sp1, {name: sp2, params: {epsilon: [0.05, 0.05]}, label: sp2-tight}]
+      loads: [none, max]
+      rates: [2500, 1000]
+      seeds: [0, 1]
+
+  ``controllers`` may also be a mapping ``{sp1: {params...}, sp2: {}}``; per-controller
+  parameters can be given separately in ``controller_params: {sp1: {...}}``.
+* YAML, list form: ``scenarios: [{controller: sp1, load: max}, ...]``, each entry merged over
+  the scalar defaults of the file.
+* CSV: one row per scenario, columns named like the :class:`Scenario` fields; dict-valued
+  fields as JSON text, or spread over dotted columns (``controller_params.epsilon``).
+
+Names (robots, loads, controllers, observers, trajectories) are checked against
+:mod:`robust_drake.models` and :mod:`robust_drake.registry` before anything runs, so a typo
+fails in a second rather than after an hour of simulations.
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import io
+import itertools
+import json
+import math
+import os
+import pathlib
+from dataclasses import asdict, dataclass, field, fields
+from typing import Any, Iterable
+
+from robust_drake.errors import RobustDrakeError
+
+__all__ = [
+    "Scenario",
+    "PRODUCT_KEYS",
+    "expand_product",
+    "load_spec",
+    "scenarios_from_records",
+    "spec_fingerprint",
+    "validate_scenarios",
+]
+
+#: Fields of ClosedLoopConfig a scenario may set through ``extra`` (everything plain-data).
+_CONFIG_EXTRA = {
+    "compensation_params", "encoder_resolution", "torque_limit", "metrics_skip", "metrics_dt",
+    "initial_q", "effects", "plant_friction",
+}
+
+
+@dataclass
+class Scenario:
+    """One closed loop, as plain data.
+
+    ``friction`` switches the plant's Coulomb + viscous friction on (the robot's default
+    values) or off; ``extra`` passes further :class:`ClosedLoopConfig` fields (``torque_limit``,
+    ``encoder_resolution``, ``initial_q``, ``metrics_skip``, ``plant_friction`` values,
+    ``effects`` as ``[name, params]`` pairs...). ``true_theta`` is the "true" plant parameter
+    vector (JS eq. 14 for the D2R2) when it differs from the controller's nominal one.
+    ``seed`` is recorded and passed on to the loop (``extra.seed``-aware blocks); ``draw`` and
+    ``tags`` label Monte Carlo draws and user groupings, and take part in the id.
+    ``label`` is a display name only (not part of the id).
+    """
+
+    robot: str = "d2r2"
+    load: str = "none"
+    controller: str = "sp1"
+    controller_params: dict = field(default_factory=dict)
+    trajectory: str = "cpt"
+    trajectory_params: dict = field(default_factory=dict)
+    rate: float = 2500.0
+    observer: str = "averaging"
+    observer_params: dict = field(default_factory=dict)
+    friction: bool = True
+    friction_compensation: bool = False
+    seed: int = 0
+    duration: float | None = None
+    true_theta: list | None = None
+    draw: int | None = None
+    tags: dict = field(default_factory=dict)
+    extra: dict = field(default_factory=dict)
+    label: str | None = None
+
+    # ------------------------------------------------------------------ identity
+    def canonical(self) -> dict:
+        """The fields that define the run, normalised (floats, sorted keys, lists)."""
+        d = asdict(self)
+        d.pop("label")
+        d["rate"] = float(d["rate"])
+        d["duration"] = None if d["duration"] is None else float(d["duration"])
+        d["seed"] = int(d["seed"])  # becomes float below; ids only need stability
+        d["friction"] = bool(d["friction"])
+        d["friction_compensation"] = bool(d["friction_compensation"])
+        if d["true_theta"] is not None:
+            d["true_theta"] = [float(x) for x in d["true_theta"]]
+        return _normalise(d)
+
+    @property
+    def id(self) -> str:
+        """Stable 16-hex-digit id: equal scenarios get equal ids in every process and run."""
+        text = json.dumps(self.canonical(), sort_keys=True, separators=(",", ":"))
+        return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+    @property
+    def name(self) -> str:
+        """A short readable name (``label`` when given)."""
+        if self.label:
+            return self.label
+        parts = [self.robot, self.load, self.controller, self.trajectory, f"{self.rate:g}Hz",
+                 self.observer]
+        if self.friction_compensation:
+            parts.append("fc")
+        if self.draw is not None:
+            parts.append(f"draw{self.draw}")
+        parts.append(f"s{self.seed}")
+        return "/".join(str(p) for p in parts)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "Scenario":
+        known = {f.name for f in fields(cls)}
+        unknown = set(d) - known
+        if unknown:
+            raise RobustDrakeError(
+                f"unknown scenario field(s) {sorted(unknown)}; known: {sorted(known)}")
+        return cls(**d)
+
+    # ------------------------------------------------------------------ to the builder
+    def to_config(self):
+        """The :class:`robust_drake.diagram.ClosedLoopConfig` of this scenario."""
+        from robust_drake.diagram import ClosedLoopConfig
+
+        kwargs = dict(
+            robot=self.robot, load=self.load, controller=self.controller,
+            controller_params=dict(self.controller_params), trajectory=self.trajectory,
+            trajectory_params=dict(self.trajectory_params), rate=float(self.rate),
+            observer=self.observer, observer_params=dict(self.observer_params),
+            friction_compensation=bool(self.friction_compensation),
+            duration=None if self.duration is None else float(self.duration),
+            true_theta=None if self.true_theta is None else [float(x) for x in self.true_theta],
+        )
+        if not self.friction:
+            kwargs["plant_friction"] = None
+        config_fields = set(getattr(ClosedLoopConfig, "__dataclass_fields__", {}))
+        for k, v in self.extra.items():
+            if k not in config_fields or k in kwargs and k != "plant_friction":
+                raise RobustDrakeError(
+                    f"scenario extra field {k!r} is not a ClosedLoopConfig option; "
+                    f"allowed: {sorted(_CONFIG_EXTRA & config_fields)}")
+            if k == "effects":
+                v = [tuple(e) for e in v]
+            kwargs[k] = v
+        if "seed" in config_fields:  # if the builder grows randomness it gets the seed
+            kwargs["seed"] = int(self.seed)
+        return ClosedLoopConfig(**kwargs)
+
+    def structure_key(self) -> str:
+        """Scenarios with equal keys share one built Diagram (they differ only in what
+        :meth:`ClosedLoop.simulate` reads per run: true_theta, duration, initial_q, seed)."""
+        d = self.canonical()
+        for k in ("true_theta", "duration", "seed", "draw", "tags"):
+            d.pop(k, None)
+        d["extra"] = {k: v for k, v in d["extra"].items()
+                      if k not in ("initial_q", "metrics_skip", "metrics_dt")}
+        return json.dumps(d, sort_keys=True, separators=(",", ":"))
+
+
+def _normalise(x):
+    """JSON-stable form: tuples -> lists, numpy scalars/arrays -> Python, ints stay ints."""
+    if isinstance(x, dict):
+        return {str(k): _normalise(v) for k, v in sorted(x.items(), key=lambda kv: str(kv[0]))}
+    if isinstance(x, (list, tuple)):
+        return [_normalise(v) for v in x]
+    if hasattr(x, "tolist"):
+        return _normalise(x.tolist())
+    if isinstance(x, int) and not isinstance(x, bool):
+        return float(x)  # 1 and 1.0 are the same parameter value
+    return x
+
+
+# ---------------------------------------------------------------------------- product specs
+
+#: Product keys: spec key -> Scenario field. Plural keys take lists; the singular field name
+#: is accepted too (scalar or list).
+PRODUCT_KEYS = {
+    "robot": "robot",
+    "trajectory": "trajectory",
+    "controllers": "controller",
+    "loads": "load",
+    "rates": "rate",
+    "observers": "observer",
+    "friction_compensation": "friction_compensation",
+    "seeds": "seed",
+}
+_SINGULAR_OF = {"robots": "robot", "trajectories": "trajectory", "controller": "controller",
+                "load": "load", "rate": "rate", "observer": "observer", "seed": "seed"}
+_PER_NAME_PARAMS = {"controller": "controller_params", "observer": "observer_params",
+                    "trajectory": "trajectory_params"}
+
+
+def _as_list(v):
+    return list(v) if isinstance(v, (list, tuple)) else [v]
+
+
+def _choice_entries(field_name: str, value) -> list[dict]:
+    """Entries for one product axis; named things may carry params and a label."""
+    params_field = _PER_NAME_PARAMS.get(field_name)
+    if isinstance(value, dict) and params_field:  # {sp1: {...}, sp2: {...}}
+        return [{field_name: str(k), params_field: dict(v or {})} for k, v in value.items()]
+    out = []
+    for v in _as_list(value):
+        if isinstance(v, dict):
+            if not params_field or "name" not in v:
+                raise RobustDrakeError(
+                    f"spec: entries of {field_name!r} given as mappings need a 'name' "
+                    f"(and optional 'params', 'label'), got {v!r}")
+            unknown = set(v) - {"name", "params", "label"}
+            if unknown:
+                raise RobustDrakeError(f"spec: unknown keys {sorted(unknown)} in {v!r}")
+            e = {field_name: str(v["name"]), params_field: dict(v.get("params") or {})}
+            if v.get("label"):
+                e["_label"] = str(v["label"])
+            out.append(e)
+        else:
+            out.append({field_name: v})
+    if not out:
+        raise RobustDrakeError(f"spec: {field_name!r} has an empty list")
+    return out
+
+
+def expand_product(spec: dict) -> list[Scenario]:
+    """Expand a product spec (see the module docstring) into scenarios, in a stable order.
+
+    Keys that are not product keys are scalar defaults for every scenario (any
+    :class:`Scenario` field, e.g. ``duration``, ``friction``, ``controller_params``).
+    ``controller_params`` / ``observer_params`` / ``trajectory_params`` may be keyed by the
+    controller/observer/trajectory name.
+    """
+    spec = dict(spec)
+    spec.pop("scenarios", None)
+    axes: list[list[dict]] = []
+    defaults: dict = {}
+    scenario_fields = {f.name for f in fields(Scenario)}
+    for key, value in spec.items():
+        field_name = PRODUCT_KEYS.get(key) or _SINGULAR_OF.get(key)
+        if field_name is not None:
+            axes.append(_choice_entries(field_name, value))
+        elif key in scenario_fields:
+            defaults[key] = value
+        else:
+            raise RobustDrakeError(
+                f"spec: unknown key {key!r}; product keys: {sorted(PRODUCT_KEYS)}, "
+                f"scenario fields: {sorted(scenario_fields)}")
+    per_name = {}
+    for field_name, params_field in _PER_NAME_PARAMS.items():
+        p = defaults.get(params_field)
+        # {sp1: {...}, sp2: {...}} keyed by name (values are dicts) vs plain params for all
+        if isinstance(p, dict) and p and all(isinstance(v, dict) for v in p.values()):
+            per_name[field_name] = defaults.pop(params_field)
+    scenarios = []
+    for combo in itertools.product(*axes) if axes else [()]:
+        d = dict(defaults)
+        label_parts = []
+        for entry in combo:
+            entry = dict(entry)
+            if "_label" in entry:
+                label_parts.append(entry.pop("_label"))
+            d.update(entry)
+        for field_name, table in per_name.items():
+            name = d.get(field_name, getattr(Scenario, field_name, None))
+            params_field = _PER_NAME_PARAMS[field_name]
+            if name in table and not d.get(params_field):
+                d[params_field] = dict(table[name])
+        s = Scenario.from_dict(d)
+        if label_parts:
+            s.label = "/".join(label_parts + [s.load, f"{s.rate:g}Hz", f"s{s.seed}"])
+        scenarios.append(s)
+    return scenarios
+
+
+def scenarios_from_records(records: Iterable[dict], defaults: dict | None = None) -> list[Scenario]:
+    """Scenarios from a list of mappings (YAML ``scenarios:`` list or CSV rows)."""
+    out = []
+    for i, rec in enumerate(records):
+        d = dict(defaults or {})
+        rec = dict(rec)
+        for key in list(rec):
+            if "." in key:  # dotted column: controller_params.epsilon
+                head, _, tail = key.partition(".")
+                val = rec.pop(key)
+                if val is None:
+                    continue
+                d.setdefault(head, {})
+                d[head] = dict(d[head])
+                d[head][tail] = val
+        d.update({k: v for k, v in rec.items() if v is not None})
+        try:
+            out.append(Scenario.from_dict(d))
+        except (TypeError, RobustDrakeError) as exc:
+            raise RobustDrakeError(f"scenario #{i + 1}: {exc}") from None
+    return out
+
+
+_BOOL_TRUE = {"true", "yes", "1", "on"}
+_BOOL_FALSE = {"false", "no", "0", "off"}
+_DICT_FIELDS = {"controller_params", "trajectory_params", "observer_params", "tags", "extra"}
+
+
+def _parse_csv_cell(key: str, text: str):
+    text = text.strip()
+    if text == "":
+        return None
+    head = key.partition(".")[0]
+    if head in ("friction", "friction_compensation"):
+        if text.lower() in _BOOL_TRUE:
+            return True
+        if text.lower() in _BOOL_FALSE:
+            return False
+        raise RobustDrakeError(f"CSV column {key!r}: expected true/false, got {text!r}")
+    if key in _DICT_FIELDS or key == "true_theta" or text[:1] in "[{":
+        try:
+            return json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise RobustDrakeError(f"CSV column {key!r}: invalid JSON {text!r} ({exc})") from None
+    if key in ("rate", "duration") or "." in key:
+        try:
+            return float(text) if key in ("rate", "duration") else _number_or_text(text)
+        except ValueError:
+            raise RobustDrakeError(f"CSV column {key!r}: expected a number, got {text!r}") from None
+    if key in ("seed", "draw"):
+        try:
+            return int(text)
+        except ValueError:
+            raise RobustDrakeError(f"CSV column {key!r}: expected an integer, got {text!r}") from None
+    return text
+
+
+def _number_or_text(text):
+    try:
+        return int(text)
+    except ValueError:
+        try:
+            return float(text)
+        except ValueError:
+            return text
+
+
+def load_spec(path: str | os.PathLike) -> tuple[list[Scenario], dict]:
+    """Read a YAML or CSV batch spec. Returns ``(scenarios, spec_document)``.
+
+    The document is what the fingerprint and the results file record (for CSV: the rows).
+    Duplicate scenarios (same id) are kept once.
+    """
+    path = pathlib.Path(path)
+    if not path.is_file():
+        raise RobustDrakeError(f"spec file {path} does not exist")
+    text = path.read_text()
+    suffix = path.suffix.lower()
+    if suffix in (".yaml", ".yml", ".json"):
+        import yaml
+
+        try:
+            doc = yaml.safe_load(text) if suffix != ".json" else json.loads(text)
+        except Exception as exc:
+            raise RobustDrakeError(f"cannot parse {path}: {exc}") from None
+        if doc is None:
+            raise RobustDrakeError(f"{path} is empty")
+        if isinstance(doc, list):
+            doc = {"scenarios": doc}
+        if not isinstance(doc, dict):
+            raise RobustDrakeError(f"{path}: expected a mapping or a list of scenarios")
+        if "scenarios" in doc:
+            defaults = {k: v for k, v in doc.items() if k != "scenarios"}
+            bad = set(defaults) - {f.name for f in fields(Scenario)}
+            if bad:
+                raise RobustDrakeError(
+                    f"{path}: with a 'scenarios' list, the other keys must be scenario fields "
+                    f"(defaults); unknown: {sorted(bad)}")
+            scenarios = scenarios_from_records(doc["scenarios"] or [], defaults)
+        else:
+            scenarios = expand_product(doc)
+    elif suffix == ".csv":
+        reader = csv.DictReader(io.StringIO(text))
+        if not reader.fieldnames:
+            raise RobustDrakeError(f"{path}: no header row")
+        rows = [{k.strip(): _parse_csv_cell(k.strip(), v or "") for k, v in row.items() if k}
+                for row in reader]
+        doc = {"scenarios": rows}
+        scenarios = scenarios_from_records(rows)
+    else:
+        raise RobustDrakeError(f"{path}: spec must be .yaml/.yml/.json or .csv")
+    return dedupe(scenarios), doc
+
+
+def dedupe(scenarios: Iterable[Scenario]) -> list[Scenario]:
+    seen, out = set(), []
+    for s in scenarios:
+        if s.id not in seen:
+            seen.add(s.id)
+            out.append(s)
+    return out
+
+
+def spec_fingerprint(scenarios: Iterable[Scenario]) -> str:
+    """Fingerprint of a batch = hash of its sorted scenario ids (order does not matter)."""
+    ids = sorted(s.id for s in scenarios)
+    return hashlib.sha256("\n".join(ids).encode()).hexdigest()[:16]
+
+
+def validate_scenarios(scenarios: Iterable[Scenario]) -> None:
+    """Check names against the models and registry tables; raise RobustDrakeError listing
+    every problem (not just the first)."""
+    from robust_drake import registry
+    from robust_drake.models import ROBOTS
+
+    problems = []
+    for s in scenarios:
+        where = f"scenario {s.name}"
+        if s.robot in ROBOTS:
+            loads = ROBOTS[s.robot].loads
+            if s.load not in loads:
+                problems.append(f"{where}: robot {s.robot!r} has no load {s.load!r} "
+                                f"(known: {', '.join(loads)})")
+        elif not str(s.robot).endswith(".urdf"):
+            problems.append(f"{where}: unknown robot {s.robot!r} (known: {', '.join(sorted(ROBOTS))})")
+        for kind, name in (("controller", s.controller), ("observer", s.observer),
+                           ("trajectory", s.trajectory)):
+            if name not in registry.names(kind):
+                problems.append(f"{where}: unknown {kind} {name!r} "
+                                f"(known: {', '.join(registry.names(kind))})")
+        if not (isinstance(s.rate, (int, float)) and math.isfinite(s.rate) and s.rate > 0):
+            problems.append(f"{where}: rate must be a positive number of Hz, got {s.rate!r}")
+        if s.duration is not None and not (isinstance(s.duration, (int, float)) and s.duration > 0):
+            problems.append(f"{where}: duration must be positive, got {s.duration!r}")
+    if problems:
+        uniq = list(dict.fromkeys(problems))
+        more = f"\n... and {len(uniq) - 20} more" if len(uniq) > 20 else ""
+        raise RobustDrakeError("invalid batch spec:\n  " + "\n  ".join(uniq[:20]) + more)
