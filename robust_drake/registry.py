@@ -25,6 +25,8 @@ CONTROLLERS: dict[str, str] = {
     "pd": "robust_drake.systems.controllers.spong:make_pd",
     "sp1": "robust_drake.systems.controllers.spong:make_sp1",
     "sp2": "robust_drake.systems.controllers.spong:make_sp2",
+    "bascetta_a": "robust_drake.systems.controllers.bascetta_rocco:make_bascetta_a",
+    "bascetta_b": "robust_drake.systems.controllers.bascetta_rocco:make_bascetta_b",
 }
 
 OBSERVERS: dict[str, str] = {

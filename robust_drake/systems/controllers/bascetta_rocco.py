@@ -1,0 +1,210 @@
+"""Robust inverse dynamics of Bascetta & Rocco (BR): Case A (section II, eqs. 12-13) and
+Case B (section IV, eqs. 17-20), as discrete controllers on the project's port convention.
+
+Law (BR eqs. 2, 5):
+
+    u = M_hat y + n_hat(q, qd),   y = qdd_d + K_D (qd_d - qd) + K_P (q_d - q) + w,
+    w = rho(||e||) z / max(||z||, eps_z),   z = B^T P e,   rho = beta_0 + beta_1 ||e|| + beta_2 ||e||^2
+
+with e = (q_d - q, qd_d - qd). Case A: P from ``A^T P + P A = -Q`` (Q = I), beta from eq. 13.
+Case B: P = bdiag(Pi, ..., Pi), Pi = delta Bb P0 Bb (Lemma 4) with P0 from eq. 17, beta from
+eq. 20. In e ordering, z_i = Pi[1, 0] q~_i + Pi[1, 1] q~dot_i.
+
+Boundary layer: ``eps_z = boundary * ||B^T P||_2`` so the layer is ``boundary`` wide in error
+units (rad, rad/s) for both cases (their P differ in scale); inside it w = rho z / eps_z is a
+continuous high-gain feedback, which keeps the 2500 Hz loop from chattering. Default 0.01.
+
+Model used by the controller (the case study, BR section V):
+* M_hat = diag(M(q = 0)) of the *nominal* model (the plant itself);
+* n_hat(q, qd) = C qd + g of a *perturbed* model: the URDF with the masses (and, with them, the
+  rotational inertias: SetMass keeps the unit inertia) of the bodies in ``perturbation`` scaled;
+  default ``{"link1": 1.2, "link2": 1.2}`` (both links 20 % heavier, 60 kg instead of 50 kg).
+  Evaluated with Drake (CalcBiasTerm - CalcGravityGeneralizedForces) on a cached context.
+
+Extra outputs: ``w`` (n, the robust term, held) and ``rho`` (1, held), for logging.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from robust_drake.errors import RobustDrakeError
+from robust_drake.systems.controllers.base import DiscreteController, diag_gain
+
+DEFAULT_PERTURBATION = {"link1": 1.2, "link2": 1.2}
+
+
+# --------------------------------------------------------------------------- models
+class ModelDynamics:
+    """``M(q)`` and ``n(q, qd) = C(q, qd) qd + g(q)`` of a Drake plant, on one cached context.
+
+    ``mass_scale`` maps body names to mass factors applied to the context (the perturbed model).
+    """
+
+    def __init__(self, robot: str, mass_scale: dict | None = None, load: str = "none"):
+        from robust_drake.models import make_plant
+
+        self.plant = make_plant(robot, load)
+        self.context = self.plant.CreateDefaultContext()
+        self.n = self.plant.num_velocities()
+        self.mass_scale = dict(mass_scale or {})
+        for body, k in self.mass_scale.items():
+            try:
+                b = self.plant.GetBodyByName(body)
+            except RuntimeError as exc:
+                raise RobustDrakeError(f"perturbation names unknown body {body!r} of {robot}: {exc}") from None
+            if not k > 0:
+                raise RobustDrakeError(f"mass factor for {body!r} must be positive (got {k})")
+            b.SetMass(self.context, b.get_mass(self.context) * float(k))
+        self._x = np.zeros(2 * self.n)
+
+    def M(self, q):
+        self.plant.SetPositions(self.context, q)
+        return self.plant.CalcMassMatrix(self.context)
+
+    def n_term(self, q, v):
+        x = self._x
+        x[:self.n] = q
+        x[self.n:] = v
+        self.plant.SetPositionsAndVelocities(self.context, x)
+        return self.plant.CalcBiasTerm(self.context) - self.plant.CalcGravityGeneralizedForces(self.context)
+
+    __call__ = n_term
+
+
+# --------------------------------------------------------------------------- pure law
+def robust_term(e, BtP, beta, eps_z):
+    """``(w, rho, z)`` of BR (w = rho z/||z|| with the boundary layer eps_z; eqs. 12, 19)."""
+    en = math.sqrt(float(np.dot(e, e)))
+    rho = beta[0] + beta[1] * en + beta[2] * en * en
+    z = BtP @ e
+    zn = math.sqrt(float(np.dot(z, z)))
+    w = (rho / max(zn, eps_z)) * z
+    return w, rho, z
+
+
+def inverse_dynamics_law(q_d, qd_d, qdd_d, q, v, kp, kd, M_hat, n_hat_value, BtP, beta, eps_z):
+    """BR eqs. 2 and 5 with the robust term: returns ``(u, w, rho)``."""
+    e_q = q_d - q
+    e_v = qd_d - v
+    e = np.concatenate([e_q, e_v])
+    w, rho, _ = robust_term(e, BtP, beta, eps_z)
+    y = qdd_d + kd * e_v + kp * e_q + w
+    return M_hat @ y + n_hat_value, w, rho
+
+
+class BascettaRoccoController(DiscreteController):
+    """Robust inverse dynamics (Case A or B, by the P and beta passed in); see the module docstring."""
+
+    def __init__(self, n, period, K_P, K_D, M_hat, n_hat, BtP, beta, boundary=0.01, name=None,
+                 design=None):
+        super().__init__(n, period, name)
+        self.kp = diag_gain(K_P, n, "K_P")
+        self.kd = diag_gain(K_D, n, "K_D")
+        self.M_hat = np.asarray(M_hat, float).reshape(n, n)
+        self.n_hat = n_hat
+        self.BtP = np.asarray(BtP, float).reshape(n, 2 * n)
+        self.beta = [float(b) for b in beta]
+        if len(self.beta) != 3 or min(self.beta) < 0:
+            raise RobustDrakeError(f"beta must be three non-negative numbers (got {beta})")
+        if not boundary > 0:
+            raise RobustDrakeError("boundary layer width must be positive")
+        self.boundary = float(boundary)
+        self.eps_z = self.boundary * float(np.linalg.norm(self.BtP, 2))
+        self.design = design or {}
+        self._w_index = self.DeclareDiscreteState(n)
+        self._rho_index = self.DeclareDiscreteState(1)
+        self.DeclareStateOutputPort("w", self._w_index)
+        self.DeclareStateOutputPort("rho", self._rho_index)
+
+    def compute(self, t, q_d, qd_d, qdd_d, q, v, v_error):
+        return inverse_dynamics_law(q_d, qd_d, qdd_d, q, v, self.kp, self.kd, self.M_hat,
+                                    self.n_hat(q, v), self.BtP, self.beta, self.eps_z)
+
+    def _update(self, context, discrete_state):
+        n = self.n
+        x_d = self._x_d_port.Eval(context)
+        u, w, rho = self.compute(context.get_time(), x_d[:n], x_d[n:2 * n], x_d[2 * n:],
+                                 self._q_port.Eval(context), self._v_port.Eval(context), None)
+        discrete_state.get_mutable_vector(self._u_index).get_mutable_value()[:] = u
+        discrete_state.get_mutable_vector(self._w_index).get_mutable_value()[:] = w
+        discrete_state.get_mutable_vector(self._rho_index).get_mutable_value()[0] = rho
+
+
+# --------------------------------------------------------------------------- design
+_DESIGN_CACHE: dict = {}
+
+
+def case_study_design(robot="siciliano_2link", trajectory="line", trajectory_params=None, K_P=25.0,
+                      K_D=5.0, perturbation=None, region="trajectory", tube=0.1, n_time=120,
+                      Q=None, delta=None, gamma=None, margin=1.1, load="none"):
+    """Everything Cases A and B need (cached): M_hat, the bounds, beta (eqs. 13, 20), P (A and B).
+
+    Bounds are taken over ``region`` ("trajectory": a +-``tube`` rad grid around q_d at ``n_time``
+    instants; "workspace": all of [-pi, pi]^n) and the reference sampled every 1 ms.
+    """
+    from robust_drake.analysis.bascetta_bounds import (
+        beta_case_a,
+        beta_case_b,
+        compute_bounds,
+        sample_configurations,
+    )
+    from robust_drake.analysis.lyapunov import lyapunov_design
+    from robust_drake.analysis.riccati import design_riccati
+    from robust_drake.models import get_arm
+    from robust_drake.trajectories import make_reference
+
+    perturbation = DEFAULT_PERTURBATION if perturbation is None else dict(perturbation)
+    trajectory_params = dict(trajectory_params or {})
+    key = repr((robot, load, trajectory, sorted(trajectory_params.items()), np.asarray(K_P).tolist(),
+                np.asarray(K_D).tolist(), sorted(perturbation.items()), region, tube, n_time,
+                None if Q is None else np.asarray(Q).tolist(), delta, gamma, margin))
+    if key in _DESIGN_CACHE:
+        return _DESIGN_CACHE[key]
+    arm = get_arm(robot)
+    ref = make_reference(arm, trajectory, **trajectory_params)
+    nominal = ModelDynamics(robot, None, load)
+    perturbed = ModelDynamics(robot, perturbation, load)
+    n = nominal.n
+    kp = diag_gain(K_P, n, "K_P")
+    kd = diag_gain(K_D, n, "K_D")
+    M_hat = np.diag(np.diag(nominal.M(np.zeros(n))))
+    t = np.arange(0.0, ref.duration + 1e-12, 1e-3)
+    q_d, qd_d, qdd_d = ref(t)
+    idx = np.linspace(0, len(t) - 1, n_time).round().astype(int)
+    configs = sample_configurations(region, n, q_d=q_d[idx], tube=tube)
+    bounds = compute_bounds(nominal.M, nominal.n_term, perturbed.n_term, M_hat, configs, qd_d, qdd_d,
+                            region=region)
+    lyap = lyapunov_design(np.diag(kp), np.diag(kd), Q)
+    ric = design_riccati(np.diag(kp), np.diag(kd), alpha=bounds.alpha, delta=delta, gamma=gamma, margin=margin)
+    out = {
+        "M_hat": M_hat, "bounds": bounds, "lyapunov": lyap, "riccati": ric,
+        "beta_A": beta_case_a(bounds, np.diag(kp), np.diag(kd)), "beta_B": beta_case_b(bounds),
+        "perturbation": perturbation, "K_P": kp, "K_D": kd, "region": region, "tube": tube,
+    }
+    _DESIGN_CACHE[key] = out
+    return out
+
+
+def _make(ctx, case, K_P=25.0, K_D=5.0, perturbation=None, boundary=0.01, region="trajectory",
+          tube=0.1, Q=None, delta=None, gamma=None, beta=None):
+    c = ctx.config
+    d = case_study_design(ctx.robot, c.trajectory, c.trajectory_params, K_P, K_D, perturbation, region, tube,
+                          Q=Q, delta=delta, gamma=gamma, load=ctx.load)
+    BtP = d["lyapunov"].BtP if case == "A" else d["riccati"].BtP
+    beta = beta if beta is not None else (d["beta_A"] if case == "A" else d["beta_B"])
+    n_hat = ModelDynamics(ctx.robot, d["perturbation"], ctx.load)  # own context per controller
+    return BascettaRoccoController(ctx.n, ctx.period, d["K_P"], d["K_D"], d["M_hat"], n_hat, BtP, beta,
+                                   boundary, name=f"bascetta_{case.lower()}", design=d)
+
+
+def make_bascetta_a(ctx, **params):
+    """Registry factory: Case A (classical Lyapunov design, BR eqs. 12-13)."""
+    return _make(ctx, "A", **params)
+
+
+def make_bascetta_b(ctx, **params):
+    """Registry factory: Case B (Riccati design, BR eqs. 17-20)."""
+    return _make(ctx, "B", **params)
