@@ -27,11 +27,21 @@ CONTROLLERS: dict[str, str] = {
     "sp2": "robust_drake.systems.controllers.spong:make_sp2",
     "bascetta_a": "robust_drake.systems.controllers.bascetta_rocco:make_bascetta_a",
     "bascetta_b": "robust_drake.systems.controllers.bascetta_rocco:make_bascetta_b",
+    "zc": "robust_drake.systems.controllers.zenieh_corless:make_zc",
+    "lg": "robust_drake.systems.controllers.liu_goldenberg:make_lg",
+    "lgplus": "robust_drake.systems.controllers.liu_goldenberg:make_lgplus",
+    "sp1_robust_friction": "robust_drake.systems.controllers.spong_friction:make_sp1_robust_friction",
+    "sp2_robust_friction": "robust_drake.systems.controllers.spong_friction:make_sp2_robust_friction",
 }
 
 OBSERVERS: dict[str, str] = {
     "averaging": "robust_drake.systems.observers:make_averaging",
     "exact": "robust_drake.systems.observers:make_exact",
+    "euler": "robust_drake.systems.estimators:make_euler",
+    "filtered": "robust_drake.systems.estimators:make_filtered",
+    "averaging67": "robust_drake.systems.estimators:make_averaging67",
+    "kalman": "robust_drake.systems.kalman_observer:make_kalman",
+    "nonlinear": "robust_drake.systems.nonlinear_observer:make_nonlinear",
 }
 
 TRAJECTORIES: dict[str, str] = {

@@ -1,0 +1,100 @@
+"""SP1 / SP2 with the Coulomb friction inside the robust law (Jaritz & Spong section 7.2).
+
+The D2R2 parameter vector is extended with the Coulomb levels (JS eq. 91)
+
+    theta = (m1 lc1^2 + m2 l1^2 + I1,  m2 lc2^2 + I2,  m2 l1 lc2,  k1,  k2)
+
+and the regressor of eq. 15 with the columns ``diag(sgn q')`` (eq. 92):
+
+    Y = [[a1, a1 + a2, y13, sgn q'1, 0], [0, a1 + a2, y23, 0, sgn q'2]]
+
+so ``tau = Y (theta_0 + u) - K r`` (eq. 12) both compensates the nominal Coulomb friction
+``k_hat sgn(q')`` and is robust to ``|k - k_hat| <= rho_k``. ``q'`` is the velocity estimate
+(``v`` port). Use it *instead of* the fixed compensation of eqs. 89-90 (the builder's
+``friction_compensation`` must stay off, or the friction is compensated twice).
+
+Choices (not printed in the paper, recorded in BUILD_NOTES.md): nominal ``k_hat = (1, 2)`` N m
+as in section 9; friction bounds ``rho_k = (0.5, 1.0)`` N m (half the nominal values); SP1's
+single bound is the Euclidean norm ``sqrt(0.1062^2 + 0.5^2 + 1.0^2)`` (as the 0.1062 of
+appendix 12.1 is the norm over the rigid-body parameters) and SP2's per-component bounds are
+table 10 extended with rho_k; epsilon as in table 1 (SP1: 1, SP2: 0.5 for every component).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from robust_drake.errors import RobustDrakeError
+from robust_drake.systems.controllers.spong import (
+    D2R2_K,
+    D2R2_LAMBDA,
+    D2R2_RHO_SP1,
+    D2R2_RHO_SP2,
+    EPSILON_SP1,
+    EPSILON_SP2,
+    SpongSP1Controller,
+    SpongSP2Controller,
+    d2r2_regressor_single,
+)
+
+K_HAT = (1.0, 2.0)  # JS section 9, k1_hat, k2_hat [N m]
+RHO_K = (0.5, 1.0)  # our choice: |k - k_hat| <= k_hat / 2
+
+
+def _sgn(x: float) -> float:
+    return 1.0 if x > 0 else (-1.0 if x < 0 else 0.0)
+
+
+def d2r2_friction_regressor(q, qd, v, a) -> np.ndarray:
+    """JS eq. 92: the eq. 15 regressor with the Coulomb columns ``diag(sgn q')`` (2 x 5)."""
+    Y = np.zeros((2, 5))
+    Y[:, :3] = d2r2_regressor_single(q, qd, v, a)
+    Y[0, 3] = _sgn(qd[0])
+    Y[1, 4] = _sgn(qd[1])
+    return Y
+
+
+def extended_bounds(rho_rigid_sp1=D2R2_RHO_SP1, rho_rigid_sp2=D2R2_RHO_SP2, rho_k=RHO_K):
+    """(rho for SP1, rho vector for SP2) over the 5 parameters of eq. 91."""
+    rho1 = math.sqrt(rho_rigid_sp1 ** 2 + sum(r * r for r in rho_k))
+    rho2 = tuple(rho_rigid_sp2) + tuple(rho_k)
+    return rho1, rho2
+
+
+def _theta0_ext(k_hat):
+    from robust_drake.models import D2R2_THETA0
+
+    return tuple(D2R2_THETA0) + tuple(k_hat)
+
+
+def _check(ctx, name):
+    if not ctx.robot.startswith("d2r2"):
+        raise RobustDrakeError(f"{name} is built for the D2R2 regressor of JS eq. 92; got robot {ctx.robot!r}")
+    if getattr(ctx.config, "friction_compensation", False):
+        raise RobustDrakeError(
+            f"{name} already compensates Coulomb friction inside the robust law (JS eqs. 91-92); "
+            f"set friction_compensation=False or the friction is compensated twice")
+
+
+def make_sp1_robust_friction(ctx, k_hat=K_HAT, rho_k=RHO_K, **params):
+    """Registry factory ``sp1_robust_friction``."""
+    _check(ctx, "sp1_robust_friction")
+    rho1, _ = extended_bounds(rho_k=rho_k)
+    p = dict(theta0=_theta0_ext(k_hat), rho=rho1, epsilon=EPSILON_SP1, K=D2R2_K, Lambda=D2R2_LAMBDA)
+    p.update(params)
+    c = SpongSP1Controller(ctx.n, ctx.period, d2r2_friction_regressor, **p)
+    c.set_name("SP1RobustFriction")
+    return c
+
+
+def make_sp2_robust_friction(ctx, k_hat=K_HAT, rho_k=RHO_K, **params):
+    """Registry factory ``sp2_robust_friction``."""
+    _check(ctx, "sp2_robust_friction")
+    _, rho2 = extended_bounds(rho_k=rho_k)
+    p = dict(theta0=_theta0_ext(k_hat), rho=rho2, epsilon=EPSILON_SP2, K=D2R2_K, Lambda=D2R2_LAMBDA)
+    p.update(params)
+    c = SpongSP2Controller(ctx.n, ctx.period, d2r2_friction_regressor, **p)
+    c.set_name("SP2RobustFriction")
+    return c
