@@ -1,0 +1,669 @@
+"""Library of candidate effects: each one is both extra regressor columns and a Drake block.
+
+An *effect* is a torque term that the rigid-body + Coulomb + viscous baseline lacks. Each effect
+kind is a subclass of :class:`Effect` registered in :data:`EFFECTS` under its exact kind name.
+One effect *instance* has a joint (0-based, or ``None`` for a global effect) and fixed shape
+parameters (Stribeck velocity, transition velocity, harmonic number, ...); what remains is linear
+in a few coefficients, so the instance can be fitted by least squares together with the baseline.
+
+Sign convention (one for the whole library)
+-------------------------------------------
+The plant moves under ``M(q) qdd + c(q, qd) + g(q) = tau + f_e`` where ``tau`` is the commanded
+(= recorded) motor torque and ``f_e`` is the effect's ``generalized_force`` block output, summed
+into the plant's ``applied_generalized_force`` input. The identification model is therefore::
+
+    tau_measured = Y(q, qd, qdd) theta + sum_e  Phi_e @ coef_e ,   Phi_e @ coef_e = -f_e
+
+i.e. the columns ``Phi_e`` (``Effect.columns``) times the coefficients are the extra torque the
+motor has to supply because of the effect, and the block outputs exactly minus that. Friction-like
+effects with positive coefficients therefore oppose motion in the plant.
+
+Three effects cannot be written as a force computed from (state, tau):
+- ``rotor_inertia`` (``-I_r qdd``) and ``payload`` need the acceleration, which a block cannot
+  read without an algebraic loop. They change the plant instead: :meth:`Effect.apply_to_plant`
+  (before ``Finalize``) sets the joint actuator's reflected inertia / welds a point mass to the
+  last link; their ``block`` returns ``None``. Drake's mass matrix and inverse dynamics then
+  contain the term, so forward simulation is exact.
+- ``time_delay`` delays the commanded torque. Its block is a discrete delay line with input
+  ``tau`` whose ``generalized_force`` is ``tau(t - d) - tau(t)``; summed with ``tau`` the plant
+  receives ``tau(t - d)``. Its columns are the first-order expansion
+  ``tau(t) - tau(t - d) ~= d * dtau/dt``, so ``columns @ coef`` and ``-block`` agree to O(d^2).
+
+Nonlinear shape parameters are fixed per candidate (a small grid in :meth:`Effect.candidates`).
+Discontinuous signs are written with the smooth sign ``tanh(qd / v_eps)`` (``v_eps`` = 0.01 rad/s
+by default) in both the columns and the blocks, so the two agree exactly and the plant can be
+integrated with an error-controlled integrator.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, ClassVar
+
+import numpy as np
+from pydrake.systems.framework import BasicVector, LeafSystem
+
+from robust_drake.errors import RobustDrakeError
+
+V_EPS = 0.01  # rad/s, smooth-sign width used unless an effect is given another
+
+
+def smooth_sign(v, v_eps=V_EPS):
+    """tanh(v / v_eps): the sign function with a transition of width ~v_eps (rad/s)."""
+    return np.tanh(np.asarray(v, dtype=float) / v_eps)
+
+
+def _fmt(x):
+    return f"{x:g}" if isinstance(x, (int, float)) else str(x)
+
+
+class Effect:
+    """One candidate effect (kind + joint + fixed shape parameters).
+
+    Subclasses define ``kind``, ``coef_names`` (per joint), ``_features`` (pure, vectorised) and
+    ``parameters`` / ``coef_from_parameters`` (the map between fitted coefficients and named SI
+    parameters). Per-joint kinds given ``joint=None`` act on every joint with separate
+    coefficients; ``shared`` kinds (one physical quantity for the whole arm, e.g. a delay) use one
+    coefficient for all joints when ``joint`` is None.
+    """
+
+    kind: ClassVar[str] = ""
+    coef_names: ClassVar[tuple[str, ...]] = ("c",)
+    needs_tau: ClassVar[bool] = False  # the block has a "tau" input
+    needs_qdd: ClassVar[bool] = False  # the columns use acceleration
+    modifies_plant: ClassVar[bool] = False  # realised by apply_to_plant, block() is None
+    shared: ClassVar[bool] = False  # joint=None -> one coefficient shared by all joints
+    default_shape: ClassVar[dict] = {}
+
+    def __init__(self, joint: int | None = None, **shape):
+        unknown = set(shape) - set(self.default_shape)
+        if unknown:
+            raise RobustDrakeError(
+                f"effect {self.kind!r}: unknown shape parameter(s) {sorted(unknown)}; "
+                f"known: {sorted(self.default_shape)}")
+        self.joint = None if joint is None else int(joint)
+        self.shape = {**self.default_shape, **shape}
+
+    # -- identity ------------------------------------------------------------------------------
+    @property
+    def name(self) -> str:
+        j = "all" if self.joint is None else str(self.joint)
+        sh = ",".join(f"{k}={_fmt(v)}" for k, v in self.shape.items() if k != "robot")
+        return f"{self.kind}[{j}]" + (f"({sh})" if sh else "")
+
+    def __repr__(self):
+        return f"<Effect {self.name}>"
+
+    def joints(self, n: int) -> list[int]:
+        if self.joint is None:
+            return list(range(n))
+        if not 0 <= self.joint < n:
+            raise RobustDrakeError(f"effect {self.kind}: joint {self.joint} out of range for {n} joints")
+        return [self.joint]
+
+    def num_coef(self, n: int) -> int:
+        if self.shared and self.joint is None:
+            return len(self.coef_names)
+        return len(self.coef_names) * len(self.joints(n))
+
+    # -- regressor side ------------------------------------------------------------------------
+    def _features(self, j, q, qd, qdd, tau, taud):
+        """Features of joint j, arrays (N, len(coef_names)); q, qd, ... are (N, n)."""
+        raise NotImplementedError
+
+    def column_names(self, n: int) -> list[str]:
+        if self.shared and self.joint is None:
+            return [f"{self.kind}:{c}" for c in self.coef_names]
+        return [f"{self.kind}:{c}{j + 1}" for j in self.joints(n) for c in self.coef_names]
+
+    def evaluate_columns(self, q, qd=None, qdd=None, tau=None, taud=None) -> np.ndarray:
+        """Pure function: the (N, n, k) columns from arrays (N, n) (missing ones only if unused)."""
+        q = np.atleast_2d(np.asarray(q, dtype=float))
+        N, n = q.shape
+        cols = np.zeros((N, n, self.num_coef(n)))
+        m = len(self.coef_names)
+        for i, j in enumerate(self.joints(n)):
+            f = self._features(j, q, qd, qdd, tau, taud)
+            if self.shared and self.joint is None:
+                cols[:, j, :] = f
+            else:
+                cols[:, j, i * m:(i + 1) * m] = f
+        return cols
+
+    def columns(self, data) -> tuple[np.ndarray, list[str]]:
+        """Extra regressor columns (N, n, k) and their names, from an ``IdentData``-like object
+        with (N, n) arrays ``t, q, qd, qdd, tau`` (``taud`` optional, else d tau/dt by central
+        differences of ``data.tau``)."""
+        q = np.asarray(data.q, dtype=float)
+        taud = None
+        if getattr(self, "uses_taud", False):
+            taud = getattr(data, "taud", None)
+            if taud is None:
+                taud = np.gradient(np.asarray(data.tau, dtype=float), np.asarray(data.t, dtype=float), axis=0)
+        cols = self.evaluate_columns(q, getattr(data, "qd", None), getattr(data, "qdd", None),
+                                     getattr(data, "tau", None), taud)
+        return cols, self.column_names(q.shape[1])
+
+    @classmethod
+    def candidates(cls, n_joints: int, **context) -> list["Effect"]:
+        """Instances to try: one per joint over the class's shape grid ``shape_grid``."""
+        grid = getattr(cls, "shape_grid", [{}])
+        return [cls(joint=j, **sh) for j in range(n_joints) for sh in grid]
+
+    # -- parameters ----------------------------------------------------------------------------
+    def parameters(self, coef) -> dict:
+        """Named SI parameters from the fitted coefficients (length ``num_coef``).
+        Per-joint kinds with joint=None give lists (one entry per joint)."""
+        coef = np.asarray(coef, dtype=float).ravel()
+        m = len(self.coef_names)
+        if len(coef) % m:
+            raise RobustDrakeError(f"{self.name}: expected a multiple of {m} coefficients, got {len(coef)}")
+        per = [self._parameters_one(coef[i:i + m]) for i in range(0, len(coef), m)]
+        out = dict(per[0]) if len(per) == 1 else {k: [p[k] for p in per] for k in per[0]}
+        for k, v in self.shape.items():
+            if k != "robot":
+                out.setdefault(k, v)
+        return out
+
+    def coef_from_parameters(self, parameters: dict, n: int) -> np.ndarray:
+        """Inverse of :meth:`parameters`: the coefficient vector (num_coef(n),)."""
+        k = self.num_coef(n)
+        m = len(self.coef_names)
+        reps = k // m
+        out = []
+        for i in range(reps):
+            p = {key: (val[i] if isinstance(val, (list, tuple, np.ndarray)) and key not in self.shape else val)
+                 for key, val in parameters.items()}
+            out.extend(self._coef_one(p))
+        return np.asarray(out, dtype=float)
+
+    def _parameters_one(self, c) -> dict:
+        return {self.coef_names[i]: float(c[i]) for i in range(len(c))}
+
+    def _coef_one(self, p) -> list[float]:
+        return [float(p[name]) for name in self.coef_names]
+
+    # -- plant side ----------------------------------------------------------------------------
+    def generalized_force(self, q, qd, tau, coef) -> np.ndarray:
+        """What the block outputs for one state: -(columns @ coef), shape (n,)."""
+        q = np.atleast_2d(q)
+        cols = self.evaluate_columns(q, np.atleast_2d(qd), None,
+                                     None if tau is None else np.atleast_2d(tau), None)
+        return -(cols[0] @ np.asarray(coef, dtype=float))
+
+    def block(self, n: int, parameters: dict, **kw) -> LeafSystem | None:
+        """Plant-side LeafSystem: input ``state`` (2n) [and ``tau`` (n)], output
+        ``generalized_force`` (n). ``None`` for effects realised by :meth:`apply_to_plant`."""
+        return EffectForceBlock(self, n, self.coef_from_parameters(parameters, n))
+
+    def apply_to_plant(self, plant, parameters: dict) -> None:
+        """Change the (not yet finalised) MultibodyPlant; no-op for force-type effects."""
+
+    def apply_to_context(self, plant, context, parameters: dict) -> None:
+        """Change a plant context (parameters set after Finalize); no-op by default."""
+
+
+class EffectForceBlock(LeafSystem):
+    """Stateless block: ``generalized_force = -(columns(state, tau) @ coef)``."""
+
+    def __init__(self, effect: Effect, n: int, coef):
+        super().__init__()
+        self.effect, self.n = effect, n
+        self.coef = np.asarray(coef, dtype=float).copy()
+        self.set_name(f"effect_{effect.kind}_{'all' if effect.joint is None else effect.joint}")
+        self._state = self.DeclareVectorInputPort("state", 2 * n)
+        self._tau = self.DeclareVectorInputPort("tau", n) if effect.needs_tau else None
+        self.DeclareVectorOutputPort("generalized_force", n, self._calc)
+
+    def _calc(self, context, output):
+        x = self._state.Eval(context)
+        n = self.n
+        tau = self._tau.Eval(context) if self._tau is not None else None
+        output.SetFromVector(self.effect.generalized_force(x[:n], x[n:], tau, self.coef))
+
+
+# ---------------------------------------------------------------------------------------------
+# The kinds
+# ---------------------------------------------------------------------------------------------
+class Stribeck(Effect):
+    """Stribeck friction excess: ``(F_s - F_c) exp(-(qd/v_s)^2) sign(qd)`` (Gaussian shape).
+
+    Coefficient ``stribeck_torque`` = F_s - F_c [N m] (breakaway minus Coulomb level), shape
+    ``stribeck_velocity`` v_s [rad/s]."""
+
+    kind = "stribeck"
+    coef_names = ("stribeck_torque",)
+    default_shape = {"stribeck_velocity": 0.1, "v_eps": V_EPS}
+    shape_grid = [{"stribeck_velocity": v} for v in (0.05, 0.1, 0.2, 0.4)]
+
+    def _features(self, j, q, qd, qdd, tau, taud):
+        v = qd[:, j]
+        vs = self.shape["stribeck_velocity"]
+        return (np.exp(-(v / vs) ** 2) * smooth_sign(v, self.shape["v_eps"]))[:, None]
+
+
+class SmoothCoulomb(Effect):
+    """Coulomb friction with a gradual transition: ``F_c tanh(qd/v_0)`` or
+    ``F_c (2/pi) atan(qd/v_0)``. Fitted next to the baseline's sharp sign(qd) column, the
+    coefficient is the share of the Coulomb level that switches gradually."""
+
+    kind = "smooth_coulomb"
+    coef_names = ("coulomb",)
+    default_shape = {"transition_velocity": 0.3, "form": "tanh"}
+    shape_grid = [{"transition_velocity": v} for v in (0.1, 0.3, 1.0)]
+
+    def _features(self, j, q, qd, qdd, tau, taud):
+        v = qd[:, j] / self.shape["transition_velocity"]
+        if self.shape["form"] == "atan":
+            return (2.0 / math.pi * np.arctan(v))[:, None]
+        if self.shape["form"] != "tanh":
+            raise RobustDrakeError("smooth_coulomb form must be 'tanh' or 'atan'")
+        return np.tanh(v)[:, None]
+
+
+class AsymmetricCoulomb(Effect):
+    """Direction-dependent Coulomb level: ``F_c+ `` for qd > 0, ``F_c-`` for qd < 0.
+
+    With the baseline's symmetric ``F_c sign(qd)`` this adds ``a |sign(qd)|`` where the
+    coefficient ``asymmetry`` a = (F_c+ - F_c-)/2 [N m]. Unlike a torque offset it vanishes at
+    rest, so only data with slow phases / reversals separate the two."""
+
+    kind = "asymmetric_coulomb"
+    coef_names = ("asymmetry",)
+    default_shape = {"v_eps": 0.02}
+    shape_grid = [{"v_eps": 0.02}]
+
+    def _features(self, j, q, qd, qdd, tau, taud):
+        return np.abs(smooth_sign(qd[:, j], self.shape["v_eps"]))[:, None]
+
+
+class LoadDependentFriction(Effect):
+    """Friction growing with the transmitted load (gear friction): ``mu |tau| sign(qd)``.
+    Coefficient ``load_coefficient`` mu (dimensionless). Block input ``tau`` = commanded torque."""
+
+    kind = "load_dependent_friction"
+    coef_names = ("load_coefficient",)
+    needs_tau = True
+    default_shape = {"v_eps": V_EPS}
+    shape_grid = [{}]
+
+    def _features(self, j, q, qd, qdd, tau, taud):
+        return (np.abs(tau[:, j]) * smooth_sign(qd[:, j], self.shape["v_eps"]))[:, None]
+
+
+class PositionDependent(Effect):
+    """Position-periodic torque (cogging, ripple, cable): ``a sin(h q) + b cos(h q)``,
+    harmonic h per revolution fixed per candidate. Parameters: ``amplitude`` A = hypot(a, b)
+    [N m], ``phase`` phi with A sin(h q + phi), and the raw ``sin`` / ``cos`` coefficients."""
+
+    kind = "position_dependent"
+    coef_names = ("sin", "cos")
+    default_shape = {"harmonic": 4}
+    shape_grid = [{"harmonic": h} for h in (2, 3, 4, 6, 8, 12)]
+
+    def _features(self, j, q, qd, qdd, tau, taud):
+        h = self.shape["harmonic"]
+        return np.stack([np.sin(h * q[:, j]), np.cos(h * q[:, j])], axis=1)
+
+    def _parameters_one(self, c):
+        a, b = float(c[0]), float(c[1])
+        return {"amplitude": math.hypot(a, b), "phase": math.atan2(b, a), "sin": a, "cos": b}
+
+    def _coef_one(self, p):
+        if "sin" in p and "cos" in p:
+            return [float(p["sin"]), float(p["cos"])]
+        A, phi = float(p["amplitude"]), float(p.get("phase", 0.0))
+        return [A * math.cos(phi), A * math.sin(phi)]
+
+
+class TorqueOffset(Effect):
+    """Constant torque bias (sensor / current offset, unmodelled static load): ``offset`` [N m]."""
+
+    kind = "torque_offset"
+    coef_names = ("offset",)
+    shape_grid = [{}]
+
+    def _features(self, j, q, qd, qdd, tau, taud):
+        return np.ones((q.shape[0], 1))
+
+
+class TorqueScale(Effect):
+    """Motor-constant error: the joint receives ``(1 + gain_error) tau`` for a commanded tau.
+    Columns ``-tau_j`` with coefficient ``gain_error`` (dimensionless). A gain error common to all
+    joints only rescales theta and is not identifiable, so candidates are per joint."""
+
+    kind = "torque_scale"
+    coef_names = ("gain_error",)
+    needs_tau = True
+    shape_grid = [{}]
+
+    def _features(self, j, q, qd, qdd, tau, taud):
+        return -tau[:, j:j + 1]
+
+
+class RotorInertia(Effect):
+    """Reflected motor inertia ``I_r qdd_j`` on the diagonal of M (``reflected_inertia`` = rotor
+    inertia x gear ratio^2, kg m^2). Realised in the plant by the joint actuator's rotor inertia
+    (an actuator is added if the joint has none). On the first joint of a serial arm it merges
+    with the first link's inertia (not identifiable); the columns are still given."""
+
+    kind = "rotor_inertia"
+    coef_names = ("reflected_inertia",)
+    needs_qdd = True
+    modifies_plant = True
+    shape_grid = [{}]
+
+    def _features(self, j, q, qd, qdd, tau, taud):
+        if qdd is None:
+            raise RobustDrakeError("rotor_inertia columns need accelerations (data.qdd)")
+        return qdd[:, j:j + 1]
+
+    def block(self, n, parameters, **kw):
+        return None
+
+    def apply_to_plant(self, plant, parameters):
+        from pydrake.multibody.tree import JointActuatorIndex
+        vals = parameters["reflected_inertia"]
+        # Pre-Finalize: the arm's 1-dof joints in index order are its coordinates 0..n-1.
+        joints = [plant.get_joint(ji) for ji in plant.GetJointIndices()
+                  if plant.get_joint(ji).num_velocities() == 1]
+        js = self.joints(len(joints))
+        vals = list(vals) if isinstance(vals, (list, tuple, np.ndarray)) else [vals] * len(js)
+        for j, Ir in zip(js, vals):
+            joint = joints[j]
+            act = None
+            for ai in plant.GetJointActuatorIndices():
+                a = plant.get_joint_actuator(ai)
+                if a.joint().index() == joint.index():
+                    act = a
+            if act is None:
+                act = plant.AddJointActuator(f"rotor_{j}", joint)
+            G = act.default_gear_ratio()
+            act.set_default_rotor_inertia(act.default_rotor_inertia() + float(Ir) / (G * G))
+
+
+class Spring(Effect):
+    """Joint-space spring (cables, balancing spring): the plant gets ``-stiffness q_j`` (rest at
+    the joint zero; a rest-angle offset shows up as a separate torque_offset). [N m/rad]"""
+
+    kind = "spring"
+    coef_names = ("stiffness",)
+    shape_grid = [{}]
+
+    def _features(self, j, q, qd, qdd, tau, taud):
+        return q[:, j:j + 1]
+
+
+class TimeDelay(Effect):
+    """Delay ``delay`` d [s] between the recorded command and the torque the plant receives.
+    Columns: d tau_j/dt (first-order expansion, see module docstring); joint=None means one delay
+    shared by all joints. Block: :class:`TorqueDelayLine`."""
+
+    kind = "time_delay"
+    coef_names = ("delay",)
+    needs_tau = True
+    shared = True
+    uses_taud = True
+    shape_grid = [{}]
+
+    def _features(self, j, q, qd, qdd, tau, taud):
+        if taud is None:
+            raise RobustDrakeError("time_delay columns need d tau/dt")
+        return taud[:, j:j + 1]
+
+    @classmethod
+    def candidates(cls, n_joints, **context):
+        return [cls(joint=None)] + [cls(joint=j) for j in range(n_joints)]
+
+    def block(self, n, parameters, sample_period=None, **kw):
+        d = parameters["delay"]
+        delays = np.zeros(n)
+        js = self.joints(n)
+        delays[js] = d if np.isscalar(d) else np.asarray(d, dtype=float)
+        return TorqueDelayLine(n, delays, sample_period or 1e-3)
+
+
+class TorqueDelayLine(LeafSystem):
+    """Discrete delay line on the commanded torque (per-joint delays ``delays`` [s]).
+
+    Samples input ``tau`` every ``period`` into a history buffer; output ``generalized_force`` =
+    tau(t - d) - tau(t), tau(t - d) linearly interpolated between the current input and the
+    stored samples. Before the first samples exist the history holds zeros."""
+
+    def __init__(self, n, delays, period):
+        super().__init__()
+        self.n = n
+        self.delays = np.asarray(delays, dtype=float)
+        if np.any(self.delays < 0):
+            raise RobustDrakeError("time_delay: delay must be >= 0")
+        self.period = float(period)
+        self.K = int(math.ceil(self.delays.max() / self.period)) + 2
+        self.set_name("effect_time_delay")
+        self._tau = self.DeclareVectorInputPort("tau", n)
+        self.DeclareVectorInputPort("state", 2 * n)  # unused; keeps the common port layout
+        # state: [t_last, buffer (K x n) newest first]
+        self._x = self.DeclareDiscreteState(1 + self.K * n)
+        self.DeclarePeriodicDiscreteUpdateEvent(self.period, 0.0, self._update)
+        self.DeclareVectorOutputPort("generalized_force", n, self._calc,
+                                     prerequisites_of_calc={self.all_sources_ticket()})
+
+    def _update(self, context, discrete_state):
+        x = context.get_discrete_state(self._x).get_value()
+        new = discrete_state.get_mutable_vector(self._x).get_mutable_value()
+        n, K = self.n, self.K
+        new[0] = context.get_time()
+        new[1 + n:] = x[1:1 + (K - 1) * n]
+        new[1:1 + n] = self._tau.Eval(context)
+
+    def _calc(self, context, output):
+        x = context.get_discrete_state(self._x).get_value()
+        t = context.get_time()
+        tau = self._tau.Eval(context)
+        n, K = self.n, self.K
+        buf = x[1:].reshape(K, n)
+        ts = x[0] - self.period * np.arange(K)
+        out = np.zeros(n)
+        for j in range(n):
+            d = self.delays[j]
+            if d <= 0:
+                continue
+            target = t - d
+            times = np.concatenate(([t], ts))[::-1]
+            vals = np.concatenate(([tau[j]], buf[:, j]))[::-1]
+            out[j] = np.interp(target, times, vals, left=vals[0]) - tau[j]
+        output.SetFromVector(out)
+
+
+class Payload(Effect):
+    """Point mass ``mass`` [kg] at the tool (a point fixed in the last link, ``tool_position``
+    in that body's frame, default from the robot's ArmSpec / the last link's COM direction).
+
+    Columns: inverse dynamics of a 1 kg point mass at the tool (with gravity), computed with the
+    Drake plant of ``robot`` (given to :func:`make_effect` / ``candidates(robot=...)`` or found
+    as ``data.robot``). Realised in the plant by welding a point-mass body to the last link.
+
+    Identifiability: a mass rigidly attached to the last link only changes that link's inertial
+    parameters, so when all base parameters are fitted freely the payload is absorbed by them
+    (its column lies in the span of the rigid-body regressor); it is separable only against a
+    prior / nominal rigid-body model."""
+
+    kind = "payload"
+    coef_names = ("mass",)
+    modifies_plant = True
+    needs_qdd = True
+    shared = True
+    default_shape = {"robot": None, "tool_position": None}
+
+    @classmethod
+    def candidates(cls, n_joints, robot=None, **context):
+        return [cls(joint=None, robot=robot)]
+
+    def _tool(self, plant):
+        body = _last_body(plant)
+        p = self.shape["tool_position"]
+        if p is None:
+            p = _default_tool_position(plant, body)
+        return body, np.asarray(p, dtype=float)
+
+    def evaluate_columns(self, q, qd=None, qdd=None, tau=None, taud=None, robot=None):
+        robot = robot or self.shape["robot"]
+        if robot is None:
+            raise RobustDrakeError("payload columns need the robot (make_effect('payload', robot=...))")
+        if qd is None or qdd is None:
+            raise RobustDrakeError("payload columns need qd and qdd")
+        plant, context, body, p = _payload_plant(robot, self.shape["tool_position"])
+        q, qd, qdd = (np.atleast_2d(a) for a in (q, qd, qdd))
+        N, n = q.shape
+        from pydrake.multibody.plant import MultibodyForces
+        f = MultibodyForces(plant)
+        cols = np.zeros((N, n, 1))
+        for i in range(N):
+            plant.SetPositions(context, q[i])
+            plant.SetVelocities(context, qd[i])
+            plant.CalcForceElementsContribution(context, f)
+            cols[i, :, 0] = plant.CalcInverseDynamics(context, qdd[i], f)
+        return cols
+
+    def columns(self, data):
+        robot = self.shape["robot"] or getattr(data, "robot", None)
+        cols = self.evaluate_columns(data.q, data.qd, data.qdd, robot=robot)
+        return cols, self.column_names(np.asarray(data.q).shape[1])
+
+    def block(self, n, parameters, **kw):
+        return None
+
+    def apply_to_plant(self, plant, parameters):
+        from pydrake.math import RigidTransform
+        from pydrake.multibody.tree import SpatialInertia, UnitInertia
+        m = float(parameters["mass"])
+        body, p = self._tool(plant)
+        pl = plant.AddRigidBody("payload", body.model_instance(),
+                                SpatialInertia(m, np.zeros(3), UnitInertia(0.0, 0.0, 0.0),
+                                               skip_validity_check=True))
+        plant.WeldFrames(body.body_frame(), pl.body_frame(), RigidTransform(p))
+
+
+def _last_body(plant):
+    """The child body of the joint that owns the last velocity coordinate (distal link)."""
+    nv = plant.num_velocities()
+    for ji in plant.GetJointIndices():
+        jt = plant.get_joint(ji)
+        if jt.num_velocities() == 1 and jt.velocity_start() == nv - 1:
+            return jt.child_body()
+    raise RobustDrakeError("payload: could not find the last joint of the arm")
+
+
+def _default_tool_position(plant, body):
+    """Twice the COM offset of the last link (the far end of a uniform rod), else the COM."""
+    c = body.default_com()
+    return 2.0 * np.asarray(c) if np.linalg.norm(c) > 0 else np.zeros(3)
+
+
+_PAYLOAD_CACHE: dict = {}
+
+
+def _payload_plant(robot, tool_position):
+    """A plant of ``robot`` whose links are massless except a 1 kg point at the tool."""
+    key = (str(robot), None if tool_position is None else tuple(tool_position))
+    if key in _PAYLOAD_CACHE:
+        return _PAYLOAD_CACHE[key]
+    from pydrake.multibody.tree import SpatialInertia, UnitInertia
+    plant = load_plant(robot)
+    context = plant.CreateDefaultContext()
+    body = _last_body(plant)
+    p = tool_position if tool_position is not None else _default_tool_position(plant, body)
+    p = np.asarray(p, dtype=float)
+    from pydrake.multibody.tree import BodyIndex
+    zero = SpatialInertia(0.0, np.zeros(3), UnitInertia(0.0, 0.0, 0.0), skip_validity_check=True)
+    for bi in range(1, plant.num_bodies()):
+        plant.get_body(BodyIndex(bi)).SetSpatialInertiaInBodyFrame(context, zero)
+    body.SetSpatialInertiaInBodyFrame(
+        context, SpatialInertia(1.0, p, UnitInertia.PointMass(p), skip_validity_check=True))
+    out = (plant, context, body, p)
+    _PAYLOAD_CACHE[key] = out
+    return out
+
+
+def load_plant(robot, effects=(), time_step=0.0, builder=None):
+    """Parse ``robot`` (a name known to ``robust_drake.models`` or a URDF/SDF path), apply the
+    plant-modifying effects [(Effect, parameters), ...] and finalise. Returns the plant (added to
+    ``builder`` with a SceneGraph when given)."""
+    from pydrake.multibody.parsing import Parser
+    from pydrake.multibody.plant import AddMultibodyPlantSceneGraph, MultibodyPlant
+    path = resolve_robot_path(robot)
+    if builder is not None:
+        plant, _ = AddMultibodyPlantSceneGraph(builder, time_step)
+    else:
+        plant = MultibodyPlant(time_step)
+    Parser(plant).AddModels(path)
+    for eff, params in effects:
+        eff.apply_to_plant(plant, params)
+    plant.Finalize()
+    return plant
+
+
+def resolve_robot_path(robot) -> str:
+    import os
+    s = str(robot)
+    if os.path.exists(s):
+        return s
+    try:
+        from robust_drake.models import resolve_urdf
+    except ImportError as exc:  # models not there yet
+        raise RobustDrakeError(f"unknown robot {robot!r} (not a file, and robust_drake.models "
+                               f"is unavailable: {exc})") from exc
+    return str(resolve_urdf(robot))
+
+
+# ---------------------------------------------------------------------------------------------
+EFFECTS: dict[str, type[Effect]] = {
+    cls.kind: cls for cls in (Stribeck, SmoothCoulomb, AsymmetricCoulomb, LoadDependentFriction,
+                              PositionDependent, TorqueOffset, TorqueScale, RotorInertia, Spring,
+                              TimeDelay, Payload)
+}
+
+
+def make_effect(kind: str, joint: int | None = None, **shape) -> Effect:
+    """An effect instance by kind name (RobustDrakeError listing the kinds if unknown)."""
+    try:
+        cls = EFFECTS[kind]
+    except KeyError:
+        raise RobustDrakeError(f"unknown effect kind {kind!r}; known: {', '.join(EFFECTS)}") from None
+    return cls(joint=joint, **shape)
+
+
+def all_candidates(n_joints: int, kinds=None, **context) -> list[Effect]:
+    """Every candidate instance of the given kinds (default all) for an n-joint arm."""
+    out = []
+    for k in kinds or EFFECTS:
+        out.extend(EFFECTS[k].candidates(n_joints, **context))
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# Diagram helpers (used by the experiment generator and by replay)
+# ---------------------------------------------------------------------------------------------
+def add_effect_blocks(builder, plant, tau_port, effects, sample_period=None):
+    """Connect ``tau_port`` (commanded torque, n) plus every force-type effect block into the
+    plant's ``applied_generalized_force`` input. ``effects`` = [(Effect, parameters), ...];
+    plant-modifying effects must already have been applied (``load_plant(robot, effects)``).
+    Returns the list of added blocks."""
+    from pydrake.systems.primitives import Adder
+    n = plant.num_velocities()
+    blocks = []
+    for eff, params in effects:
+        blk = eff.block(n, params, sample_period=sample_period)
+        if blk is None:
+            continue
+        builder.AddSystem(blk)
+        builder.Connect(plant.get_state_output_port(), blk.GetInputPort("state"))
+        if blk.HasInputPort("tau"):
+            builder.Connect(tau_port, blk.GetInputPort("tau"))
+        blocks.append(blk)
+    adder = builder.AddSystem(Adder(1 + len(blocks), n))
+    adder.set_name("applied_force_sum")
+    builder.Connect(tau_port, adder.get_input_port(0))
+    for i, blk in enumerate(blocks):
+        builder.Connect(blk.GetOutputPort("generalized_force"), adder.get_input_port(i + 1))
+    builder.Connect(adder.get_output_port(0), plant.get_applied_generalized_force_input_port())
+    return blocks

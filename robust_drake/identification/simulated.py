@@ -1,0 +1,343 @@
+"""Simulated identification experiments with known hidden effects.
+
+:func:`simulate_experiment` builds a Drake diagram of a "true" arm: the robot's URDF plant
+(continuous, error-controlled RK3), baseline friction (Coulomb with a 0.01 rad/s tanh transition
++ viscous), any extra effect blocks from :mod:`robust_drake.identification.effects` (and the
+plant-modifying ones applied before ``Finalize``), driven by a PD controller tracking an exciting
+Fourier-series reference. The recorded data are sampled at ``rate_hz``: encoder-quantised joint
+angles and the commanded torque plus Gaussian measurement noise, written as a canonical CSV
+(``t, q1..qn, tau1..taun`` [+ ``qd1..qdn`` true velocities if asked]).
+
+:func:`hidden_effect_case` gives, for every effect kind, a fit / validation pair of CSVs with
+that effect present and its truth (kind, joint, parameters) for the hidden-effect tests.
+
+Diagram::
+
+    reference(t) --> PD excitation --tau--> [+] --> plant.applied_generalized_force
+                          ^            |     ^
+                          |            +--> effect blocks (state, tau) ----+
+                          +---- plant state ---------------------------------
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+from pydrake.systems.analysis import ResetIntegratorFromFlags, Simulator
+from pydrake.systems.framework import DiagramBuilder, LeafSystem
+from pydrake.systems.primitives import VectorLogSink
+
+from robust_drake.errors import RobustDrakeError
+from robust_drake.identification.effects import (EFFECTS, Effect, add_effect_blocks, load_plant,
+                                                  make_effect, smooth_sign)
+
+DEFAULT_ROBOT = "dfki_double_pendulum_c1"
+
+
+# ---------------------------------------------------------------------------------------------
+# Excitation
+# ---------------------------------------------------------------------------------------------
+@dataclass
+class FourierReference:
+    """Finite Fourier series per joint (the usual exciting trajectory of identification):
+    q_j(t) = offset_j + sum_k a_jk sin(k w t) + b_jk cos(k w t),  w = 2 pi base_frequency."""
+
+    a: np.ndarray  # (n, K)
+    b: np.ndarray  # (n, K)
+    base_frequency: float
+    offset: np.ndarray  # (n,)
+
+    def __call__(self, t):
+        if np.ndim(t) == 0:  # fast scalar path (called at every derivative evaluation)
+            kw = 2 * math.pi * self.base_frequency * np.arange(1, self.a.shape[1] + 1)
+            ph = kw * float(t)
+            s, c = np.sin(ph), np.cos(ph)
+            return (self.offset + self.a @ s + self.b @ c, self.a @ (c * kw) - self.b @ (s * kw),
+                    -(self.a @ (s * kw * kw)) - self.b @ (c * kw * kw))
+        t = np.asarray(t, dtype=float)
+        w = 2 * math.pi * self.base_frequency
+        k = np.arange(1, self.a.shape[1] + 1)
+        ph = np.multiply.outer(t, k * w)  # (..., K)
+        s, c = np.sin(ph), np.cos(ph)
+        q = self.offset + s @ self.a.T + c @ self.b.T
+        qd = (c * (k * w)) @ self.a.T - (s * (k * w)) @ self.b.T
+        qdd = -(s * (k * w) ** 2) @ self.a.T - (c * (k * w) ** 2) @ self.b.T
+        return q, qd, qdd
+
+    @classmethod
+    def random(cls, n, rng, amplitude, base_frequency=0.1, harmonics=5, offset=None):
+        """Random coefficients (1/k decay) scaled so max |q_j - offset_j| = amplitude_j over a
+        period."""
+        amp = np.broadcast_to(np.asarray(amplitude, dtype=float), (n,))
+        k = np.arange(1, harmonics + 1)
+        a = rng.standard_normal((n, harmonics)) / k
+        b = rng.standard_normal((n, harmonics)) / k
+        ref = cls(a, b, base_frequency, np.zeros(n))
+        tt = np.linspace(0, 1 / base_frequency, 2000)
+        peak = np.abs(ref(tt)[0]).max(axis=0)
+        ref.a = a * (amp / peak)[:, None]
+        ref.b = b * (amp / peak)[:, None]
+        ref.offset = np.zeros(n) if offset is None else np.asarray(offset, dtype=float)
+        return ref
+
+
+class PDExcitation(LeafSystem):
+    """Continuous PD tracking of a reference: input ``state`` (2n), output ``tau`` (n) =
+    Kp (q_r - q) + Kd (qd_r - qd), clipped to +-torque_limit."""
+
+    def __init__(self, reference, Kp, Kd, torque_limit=None):
+        super().__init__()
+        self.ref = reference
+        self.n = n = len(Kp)
+        self.Kp, self.Kd = np.asarray(Kp, float), np.asarray(Kd, float)
+        self.limit = torque_limit
+        self._state = self.DeclareVectorInputPort("state", 2 * n)
+        self.DeclareVectorOutputPort("tau", n, self._calc)
+
+    def _calc(self, context, output):
+        x = self._state.Eval(context)
+        n = self.n
+        qr, qdr, _ = self.ref(context.get_time())
+        u = self.Kp * (qr - x[:n]) + self.Kd * (qdr - x[n:])
+        if self.limit is not None and np.any(np.abs(u) > self.limit):
+            u = np.clip(u, -self.limit, self.limit)
+        output.SetFromVector(u)
+
+
+class BaselineFriction(LeafSystem):
+    """The friction every simulated arm has (what the baseline model fits):
+    generalized_force = -(F_c tanh(qd / v_eps) + b qd)."""
+
+    def __init__(self, coulomb, viscous, v_eps=0.01):
+        super().__init__()
+        self.Fc, self.b = np.asarray(coulomb, float), np.asarray(viscous, float)
+        self.v_eps = v_eps
+        n = len(self.Fc)
+        self.n = n
+        self._state = self.DeclareVectorInputPort("state", 2 * n)
+        self.DeclareVectorOutputPort("generalized_force", n, self._calc)
+
+    def _calc(self, context, output):
+        qd = self._state.Eval(context)[self.n:]
+        output.SetFromVector(-(self.Fc * smooth_sign(qd, self.v_eps) + self.b * qd))
+
+
+# ---------------------------------------------------------------------------------------------
+# Experiment
+# ---------------------------------------------------------------------------------------------
+def _as_effects(effects) -> list[tuple[Effect, dict]]:
+    out = []
+    for e in effects or []:
+        if isinstance(e, tuple) and isinstance(e[0], Effect):
+            out.append((e[0], dict(e[1])))
+            continue
+        if isinstance(e, dict):
+            kind, joint, params = e["kind"], e.get("joint"), e.get("parameters", {})
+        else:
+            kind, joint, params = e
+        params = dict(params)
+        cls = EFFECTS.get(kind)
+        shape = {k: params[k] for k in (cls.default_shape if cls else {}) if k in params}
+        out.append((make_effect(kind, joint, **shape), params))
+    return out
+
+
+def simulate_experiment(robot=DEFAULT_ROBOT, effects=(), duration=15.0, rate_hz=250.0, seed=0,
+                        excitation=None, encoder_resolution=2 * math.pi / 2**14,
+                        torque_noise_std=0.005, out_csv=None, coulomb=(0.08, 0.05),
+                        viscous=(0.004, 0.002), include_velocity=False, extra_blocks=(),
+                        accuracy=1e-5, return_result=False):
+    """Simulate the true arm with ``effects`` and record an identification experiment.
+
+    effects: [(kind, joint, parameters), ...] (or (Effect, parameters)); parameters are the
+        named SI values of :meth:`Effect.parameters` plus shape values (e.g.
+        ``{"stribeck_torque": 0.1, "stribeck_velocity": 0.15}``).
+    excitation: dict overriding ``amplitude`` (rad per joint), ``base_frequency`` (Hz),
+        ``harmonics``, ``bandwidth_hz``, ``offset``, ``seed`` (reference seed; default ``seed``),
+        ``torque_limit``.
+    extra_blocks: factories ``f(n) -> LeafSystem`` with input ``state`` (and optionally
+        ``tau``) and output ``generalized_force``: effects outside the library.
+    Returns a DataFrame with columns ``t, q1..qn, tau1..taun`` (+ ``qd1..qdn``); writes it to
+    ``out_csv`` when given. With ``return_result`` also returns a dict of true signals.
+    """
+    exc = dict(amplitude=(1.0, 1.3), base_frequency=0.1, harmonics=5, bandwidth_hz=4.0,
+               offset=None, seed=seed, torque_limit=12.0)
+    exc.update(excitation or {})
+    rng_ref = np.random.default_rng(exc["seed"])
+    rng_noise = np.random.default_rng(10_000 + seed)
+
+    effs = _as_effects(effects)
+    builder = DiagramBuilder()
+    plant = load_plant(robot, effs, time_step=0.0, builder=builder)
+    n = plant.num_velocities()
+    amp = np.broadcast_to(np.asarray(exc["amplitude"], float), (n,))
+    ref = FourierReference.random(n, rng_ref, amp, exc["base_frequency"], exc["harmonics"],
+                                  exc["offset"])
+
+    # PD gains from the nominal mass matrix diagonal at the reference's start.
+    ctx0 = plant.CreateDefaultContext()
+    plant.SetPositions(ctx0, ref(0.0)[0])
+    Mdiag = np.diag(plant.CalcMassMatrix(ctx0)).copy()
+    w = 2 * math.pi * exc["bandwidth_hz"]
+    ctrl = builder.AddSystem(PDExcitation(ref, Mdiag * w * w, 2 * 0.7 * Mdiag * w, exc["torque_limit"]))
+    ctrl.set_name("pd_excitation")
+    builder.Connect(plant.get_state_output_port(), ctrl.get_input_port(0))
+
+    fric = BaselineFriction(np.broadcast_to(coulomb, (n,)), np.broadcast_to(viscous, (n,)))
+    extra = [(fric, None)] + [(f(n), None) for f in extra_blocks]
+    period = 1.0 / rate_hz
+    blocks = add_effect_blocks(builder, plant, ctrl.get_output_port(0),
+                               effs + [(_Prebuilt(b), None) for b, _ in extra],
+                               sample_period=period)
+    del blocks
+
+    log_x = builder.AddSystem(VectorLogSink(2 * n, period))
+    log_u = builder.AddSystem(VectorLogSink(n, period))
+    builder.Connect(plant.get_state_output_port(), log_x.get_input_port())
+    builder.Connect(ctrl.get_output_port(0), log_u.get_input_port())
+    diagram = builder.Build()
+
+    sim = Simulator(diagram)
+    root = sim.get_mutable_context()
+    pc = plant.GetMyMutableContextFromRoot(root)
+    q0, qd0, _ = ref(0.0)
+    plant.SetPositions(pc, q0)
+    plant.SetVelocities(pc, qd0)
+    for eff, params in effs:
+        eff.apply_to_context(plant, pc, params)
+    integ = ResetIntegratorFromFlags(sim, "runge_kutta3", period)
+    integ.set_target_accuracy(accuracy)
+    integ.set_maximum_step_size(period)
+    sim.Initialize()
+    sim.AdvanceTo(duration)
+
+    lx = log_x.FindLog(root)
+    lu = log_u.FindLog(root)
+    t = lx.sample_times()
+    X = lx.data().T
+    U = lu.data().T
+    m = min(len(t), len(U))
+    t, X, U = t[:m], X[:m], U[:m]
+    q_true, qd_true = X[:, :n], X[:, n:]
+    q_meas = q_true.copy()
+    if encoder_resolution:
+        q_meas = np.round(q_true / encoder_resolution) * encoder_resolution
+    tau_rec = U + (rng_noise.standard_normal(U.shape) * torque_noise_std if torque_noise_std else 0.0)
+
+    cols = {"t": t}
+    for j in range(n):
+        cols[f"q{j + 1}"] = q_meas[:, j]
+    for j in range(n):
+        cols[f"tau{j + 1}"] = tau_rec[:, j]
+    if include_velocity:
+        for j in range(n):
+            cols[f"qd{j + 1}"] = qd_true[:, j]
+    df = pd.DataFrame(cols)
+    if out_csv is not None:
+        os.makedirs(os.path.dirname(os.path.abspath(out_csv)), exist_ok=True)
+        df.to_csv(out_csv, index=False, float_format="%.10g")
+    if return_result:
+        return df, {"q": q_true, "qd": qd_true, "tau": U, "t": t, "reference": ref}
+    return df
+
+
+class _Prebuilt(Effect):
+    """Wraps an already built block so it goes through :func:`add_effect_blocks`."""
+
+    kind = "_prebuilt"
+
+    def __init__(self, blk):
+        super().__init__(None)
+        self._blk = blk
+
+    def block(self, n, parameters, **kw):
+        return self._blk
+
+
+# ---------------------------------------------------------------------------------------------
+# Effects outside the library (for the "unexplained structure" tests)
+# ---------------------------------------------------------------------------------------------
+class PeriodicDisturbance(LeafSystem):
+    """A disturbance periodic in *time* (e.g. a pump, a vibrating base):
+    generalized_force_j = amplitude_j sin(2 pi f t + phase_j). No library effect depends on t."""
+
+    def __init__(self, n, amplitude, frequency, phase=0.0):
+        super().__init__()
+        self.amp = np.broadcast_to(np.asarray(amplitude, float), (n,)).copy()
+        self.f = frequency
+        self.phase = np.broadcast_to(np.asarray(phase, float), (n,)).copy()
+        self.DeclareVectorInputPort("state", 2 * n)
+        self.DeclareVectorOutputPort("generalized_force", n, self._calc)
+
+    def _calc(self, context, output):
+        t = context.get_time()
+        output.SetFromVector(self.amp * np.sin(2 * math.pi * self.f * t + self.phase))
+
+
+# ---------------------------------------------------------------------------------------------
+# Hidden-effect cases
+# ---------------------------------------------------------------------------------------------
+#: One case per library kind: (joint, true parameters, relative tolerance on ``key``).
+#: Magnitudes are chosen so the effect's torque is several times the 5 mN m torque noise.
+HIDDEN_CASES: dict[str, dict] = {
+    "stribeck": dict(joint=1, parameters={"stribeck_torque": 0.08, "stribeck_velocity": 0.1},
+                     key="stribeck_torque", rtol=0.3),
+    "smooth_coulomb": dict(joint=0, parameters={"coulomb": 0.12, "transition_velocity": 0.3},
+                           key="coulomb", rtol=0.3),
+    "asymmetric_coulomb": dict(joint=1, parameters={"asymmetry": 0.04}, key="asymmetry", rtol=0.3),
+    "load_dependent_friction": dict(joint=0, parameters={"load_coefficient": 0.1},
+                                    key="load_coefficient", rtol=0.3),
+    "position_dependent": dict(joint=1, parameters={"amplitude": 0.06, "phase": 0.5, "harmonic": 4},
+                               key="amplitude", rtol=0.3),
+    "torque_offset": dict(joint=1, parameters={"offset": 0.05}, key="offset", rtol=0.3),
+    "torque_scale": dict(joint=1, parameters={"gain_error": -0.2}, key="gain_error", rtol=0.3),
+    "rotor_inertia": dict(joint=1, parameters={"reflected_inertia": 0.01}, key="reflected_inertia",
+                          rtol=0.3),
+    "spring": dict(joint=1, parameters={"stiffness": 0.15}, key="stiffness", rtol=0.3),
+    "time_delay": dict(joint=None, parameters={"delay": 0.012}, key="delay", rtol=0.4),
+    "payload": dict(joint=None, parameters={"mass": 0.2}, key="mass", rtol=0.3),
+}
+
+
+def hidden_effect_case(kind, seed=0, out_dir=None, duration=12.0, rate_hz=250.0, **kw):
+    """Fit and validation CSVs of the default arm with one hidden effect of ``kind``.
+
+    ``kind`` is a library kind (parameters from :data:`HIDDEN_CASES`), ``"none"`` (baseline
+    only) or ``"periodic_disturbance"`` (outside the library: a 0.7 Hz time-periodic torque
+    on joint 1). Fit and validation use different reference seeds (different motions).
+    Returns (fit_csv, validate_csv, truth) with truth = {"kind", "joint", "parameters", "key",
+    "rtol", "robot"}.
+    """
+    import tempfile
+    out_dir = out_dir or tempfile.mkdtemp(prefix=f"hidden_{kind}_")
+    robot = kw.pop("robot", DEFAULT_ROBOT)
+    extra, effects = (), []
+    if kind == "none":
+        truth = {"kind": None, "joint": None, "parameters": {}}
+    elif kind == "periodic_disturbance":
+        amp, f = (0.0, 0.08), 0.7
+        extra = (lambda n: PeriodicDisturbance(n, amp, f, 0.3),)
+        truth = {"kind": kind, "joint": 1, "parameters": {"amplitude": amp[1], "frequency": f}}
+    else:
+        if kind not in HIDDEN_CASES:
+            raise RobustDrakeError(f"no hidden-effect case for {kind!r}; known: "
+                                   f"{', '.join(list(HIDDEN_CASES) + ['none', 'periodic_disturbance'])}")
+        case = HIDDEN_CASES[kind]
+        params = dict(case["parameters"])
+        if kind == "payload":
+            params["robot"] = robot
+        effects = [(kind, case["joint"], params)]
+        truth = {"kind": kind, "joint": case["joint"], "parameters": dict(case["parameters"]),
+                 "key": case["key"], "rtol": case["rtol"]}
+    truth["robot"] = robot
+    paths = []
+    for role, s in (("fit", seed), ("validate", seed + 1)):
+        path = os.path.join(out_dir, f"{kind}_{role}.csv")
+        simulate_experiment(robot, effects, duration=duration, rate_hz=rate_hz, seed=s,
+                            out_csv=path, extra_blocks=extra, **kw)
+        paths.append(path)
+    return paths[0], paths[1], truth
