@@ -1,0 +1,781 @@
+"""Inverse-dynamics regressors: closed forms from the papers and Drake-derived ones.
+
+Closed forms (pure numpy, vectorised over leading axes):
+
+- :func:`d2r2_regressor` -- Jaritz & Spong eq. 15, ``Y(q, qd, v, a) theta = M(q) a + C(q, qd) v``
+  with theta of eq. 14 (see :mod:`robust_drake.models` for the D2R2 parameter sets).
+- :func:`imi_scara_regressor` -- Calafiore & Indri section 5, ``tau = D(q, qd, qdd) theta``,
+  theta in R^8 (4 inertial + Coulomb and viscous friction of eq. 16).  The printed entry
+  D_{1,2} has ``s2 qdd2 (2 qd1 + qd2)``; the physics (and Drake) give ``s2 qd2 (2 qd1 + qd2)``,
+  which is what is implemented (see BUILD_NOTES.md, "Models and regressors").
+- :data:`IMI_THETA0` and :data:`IMI_P`: the published central estimate and confidence-ellipsoid
+  matrix (CI section 5.1) live in this module.
+
+General (:class:`InverseDynamicsRegressor`), for any URDF with revolute/prismatic/weld joints
+on a fixed base: ``tau = Y(q, v, vdot) theta_base`` including gravity, with the *standard*
+parameters per moving body ``[m, m cx, m cy, m cz, Ixx, Iyy, Izz, Ixy, Ixz, Iyz]`` (centre of
+mass and rotational inertia about the **body origin**, in the body frame), plus the reflected
+rotor inertia ``Ia_<joint>`` (kr^2 Ir) where the URDF has one and a viscous coefficient
+``b_<joint>`` where it has joint damping.  The identifiable base set is found numerically (QR
+on random samples, columns scanned in a fixed priority order); ``base_from_standard`` is the
+linear map theta_base = K pi.
+
+Two routes give the same base parameterisation:
+
+- ``"numeric"``: a vectorised recursive Newton-Euler regressor in numpy (Featherstone's spatial
+  algebra, joint geometry read from the Drake plant); cost grows ~ n^2 and a 7-link chain
+  derives in well under a second.
+- ``"symbolic"``: ``MultibodyPlant.ToSymbolic()``, symbolic spatial inertias (m, c, unit inertia
+  about the body origin), ``CalcInverseDynamics`` with ``CalcForceElementsContribution``
+  (gravity), ``DecomposeLumpedParameters``, and the lumped regressor compiled to one vectorised
+  numpy function.  Only sensible for short chains (pitfalls notes: ~20x slower per link).
+
+``method="auto"`` uses symbolic for n <= 2 and numeric otherwise.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import pathlib
+import threading
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from robust_drake.errors import RobustDrakeError
+
+__all__ = [
+    "IMI_L1",
+    "IMI_L2",
+    "IMI_THETA0",
+    "IMI_P",
+    "IMI_THETA_NAMES",
+    "d2r2_regressor",
+    "imi_scara_regressor",
+    "imi_theta_from_plant",
+    "InverseDynamicsRegressor",
+    "drake_inverse_dynamics",
+    "clear_cache",
+]
+
+# ----------------------------------------------------------------------------- closed forms
+
+
+def d2r2_regressor(q, qd, v, a) -> np.ndarray:
+    """JS eq. 15: Y(q, qd, v, a), shape (..., 2, 3), with Y theta = M(q) a + C(q, qd) v.
+
+    theta = [m1 lc1^2 + m2 l1^2 + I1, m2 lc2^2 + I2, m2 l1 lc2] (eq. 14);
+    y13 = cos q2 (2 a1 + a2) - sin q2 (qd1 v2 + qd2 (v1 + v2)), y23 = cos q2 a1 + sin q2 qd1 v1.
+    With v = qd and a = qdd this is the inverse dynamics (horizontal plane, no gravity).
+    """
+    q, qd, v, a = np.broadcast_arrays(*(np.asarray(x, dtype=float) for x in (q, qd, v, a)))
+    if q.shape[-1] != 2:
+        raise RobustDrakeError(f"d2r2_regressor expects 2 joints (last axis 2), got {q.shape}")
+    c2, s2 = np.cos(q[..., 1]), np.sin(q[..., 1])
+    a1, a2 = a[..., 0], a[..., 1]
+    qd1, qd2 = qd[..., 0], qd[..., 1]
+    v1, v2 = v[..., 0], v[..., 1]
+    Y = np.zeros(q.shape[:-1] + (2, 3))
+    Y[..., 0, 0] = a1
+    Y[..., 0, 1] = a1 + a2
+    Y[..., 0, 2] = c2 * (2.0 * a1 + a2) - s2 * (qd1 * v2 + qd2 * (v1 + v2))
+    Y[..., 1, 1] = a1 + a2
+    Y[..., 1, 2] = c2 * a1 + s2 * qd1 * v1
+    return Y
+
+
+IMI_L1 = 0.359  # m, CI section 5
+IMI_L2 = 0.24  # m
+#: CI section 5.1 central estimate: [Gamma1z + m2 l1^2, m2 s2x, m2 s2y, Gamma2z,
+#: sigma_s1, sigma_v1, sigma_s2, sigma_v2] (SI units).
+IMI_THETA0 = np.array([4.69, -0.4, 0.65, -0.09, 1.4, 12.12, 1.9, -0.24])
+IMI_THETA_NAMES = (
+    "Gamma1z+m2*l1^2", "m2*s2x", "m2*s2y", "Gamma2z", "sigma_s1", "sigma_v1", "sigma_s2", "sigma_v2",
+)
+#: CI section 5.1 confidence-ellipsoid matrix, E(P, theta0) = {theta: (theta - theta0)^T P^-1
+#: (theta - theta0) <= 1}, as printed (symmetric, positive definite: min eigenvalue 0.019).
+IMI_P = np.array([
+    [1.62, 2.84, 1.56, 0.1, -1.13, 4.03, -0.13, 0.06],
+    [2.84, 9.06, 5.31, 0.19, -1.38, 2.75, -0.38, -0.08],
+    [1.56, 5.31, 3.95, 0.05, -0.57, 0.39, -0.11, -0.49],
+    [0.1, 0.19, 0.05, 0.03, -0.06, 0.22, -0.02, 0.04],
+    [-1.13, -1.38, -0.57, -0.06, 3.66, -9.49, 0.07, -0.08],
+    [4.03, 2.75, 0.39, 0.22, -9.49, 32.2, -0.22, 0.56],
+    [-0.13, -0.38, -0.11, -0.02, 0.07, -0.22, 0.26, -0.32],
+    [0.06, -0.08, -0.49, 0.04, -0.08, 0.56, -0.32, 0.74],
+])
+
+
+def imi_scara_regressor(q, qd, qdd, l1: float = IMI_L1) -> np.ndarray:
+    """CI section 5: D(q, qd, qdd), shape (..., 2, 8), tau = D theta (horizontal plane).
+
+    Columns 1-4 rigid body, 5-8 friction of eq. 16 (sgn(qd_i), qd_i per joint).
+    Correction of the printed D_{1,2}: ``l1 (c2 (2 qdd1 + qdd2) - s2 qd2 (2 qd1 + qd2))``
+    (the paper prints ``qdd2`` in the centripetal/Coriolis product).
+    """
+    q, qd, qdd = np.broadcast_arrays(*(np.asarray(x, dtype=float) for x in (q, qd, qdd)))
+    if q.shape[-1] != 2:
+        raise RobustDrakeError(f"imi_scara_regressor expects 2 joints (last axis 2), got {q.shape}")
+    c2, s2 = np.cos(q[..., 1]), np.sin(q[..., 1])
+    qd1, qd2 = qd[..., 0], qd[..., 1]
+    a1, a2 = qdd[..., 0], qdd[..., 1]
+    D = np.zeros(q.shape[:-1] + (2, 8))
+    D[..., 0, 0] = a1
+    D[..., 0, 1] = l1 * (c2 * (2 * a1 + a2) - s2 * qd2 * (2 * qd1 + qd2))
+    D[..., 0, 2] = l1 * (-s2 * (2 * a1 + a2) - c2 * qd2 * (2 * qd1 + qd2))
+    D[..., 0, 3] = a1 + a2
+    D[..., 0, 4] = np.sign(qd1)
+    D[..., 0, 5] = qd1
+    D[..., 1, 1] = l1 * (c2 * a1 + s2 * qd1**2)
+    D[..., 1, 2] = l1 * (-s2 * a1 + c2 * qd1**2)
+    D[..., 1, 3] = a1 + a2
+    D[..., 1, 6] = np.sign(qd2)
+    D[..., 1, 7] = qd2
+    return D
+
+
+def imi_theta_from_plant(plant, context=None) -> np.ndarray:
+    """The 4 inertial entries of the CI theta (section 5) read from a 2-link horizontal plant.
+
+    From the mass matrix: d22 = Gamma2z, d12(q2=0) = Gamma2z + l1 m2 s2x,
+    d12(q2=pi/2) = Gamma2z - l1 m2 s2y, d11(0) = theta1 + Gamma2z + 2 l1 m2 s2x (theta1 includes
+    any reflected rotor inertia on joint 1).  l1 is read from the plant.
+    """
+    from robust_drake.models import _joint2_offset
+
+    if plant.num_positions() != 2:
+        raise RobustDrakeError("imi_theta_from_plant expects a 2-joint arm")
+    _, _, l1 = _joint2_offset(plant)
+    ctx = plant.CreateDefaultContext() if context is None else context.Clone()
+    plant.SetPositions(ctx, np.zeros(2))
+    M0 = plant.CalcMassMatrix(ctx)
+    plant.SetPositions(ctx, np.array([0.0, math.pi / 2]))
+    M90 = plant.CalcMassMatrix(ctx)
+    g2 = M0[1, 1]
+    hx = (M0[0, 1] - g2) / l1
+    hy = (g2 - M90[0, 1]) / l1
+    th1 = M0[0, 0] - g2 - 2 * l1 * hx
+    return np.array([th1, hx, hy, g2])
+
+
+# ----------------------------------------------------------------------------- Drake reference
+
+
+def drake_inverse_dynamics(plant, context, q, v, vdot) -> np.ndarray:
+    """Drake's inverse dynamics INCLUDING gravity and force elements, vectorised by a loop.
+
+    ``CalcInverseDynamics`` alone ignores gravity; force elements (gravity, joint damping) are
+    added with ``CalcForceElementsContribution`` first.  Inputs (N, n) or (n,); output (N, n).
+    """
+    from pydrake.multibody.tree import MultibodyForces
+
+    q, v, vdot = (np.atleast_2d(np.asarray(x, dtype=float)) for x in (q, v, vdot))
+    ctx = context.Clone()
+    forces = MultibodyForces(plant)
+    out = np.empty((q.shape[0], plant.num_velocities()))
+    for k in range(q.shape[0]):
+        plant.SetPositions(ctx, q[k])
+        plant.SetVelocities(ctx, v[k])
+        plant.CalcForceElementsContribution(ctx, forces)
+        out[k] = plant.CalcInverseDynamics(ctx, vdot[k], forces)
+    return out
+
+
+# ----------------------------------------------------------------------------- spatial helpers
+
+
+def _skew(w):
+    """(..., 3) -> (..., 3, 3) cross-product matrices."""
+    S = np.zeros(w.shape[:-1] + (3, 3))
+    S[..., 0, 1], S[..., 0, 2] = -w[..., 2], w[..., 1]
+    S[..., 1, 0], S[..., 1, 2] = w[..., 2], -w[..., 0]
+    S[..., 2, 0], S[..., 2, 1] = -w[..., 1], w[..., 0]
+    return S
+
+
+def _rot_axis(axis, angle):
+    """Rodrigues: (N,) angles about a fixed unit axis -> (N, 3, 3)."""
+    k = np.asarray(axis, dtype=float)
+    K = _skew(k)
+    c, s = np.cos(angle)[:, None, None], np.sin(angle)[:, None, None]
+    return np.eye(3) + s * K + (1 - c) * (K @ K)
+
+
+def _motion_transform(R_PB, p_PB):
+    """Featherstone's BX_P from the pose of B in P: (N,3,3), (N,3) -> (N,6,6)."""
+    E = np.swapaxes(R_PB, -1, -2)
+    X = np.zeros(R_PB.shape[:-2] + (6, 6))
+    X[..., :3, :3] = E
+    X[..., 3:, 3:] = E
+    X[..., 3:, :3] = -E @ _skew(p_PB)
+    return X
+
+
+def _crm_times(vel, m):
+    """crm(vel) m for spatial motion vectors (..., 6)."""
+    w, vl = vel[..., :3], vel[..., 3:]
+    mw, mv = m[..., :3], m[..., 3:]
+    return np.concatenate([np.cross(w, mw), np.cross(w, mv) + np.cross(vl, mw)], axis=-1)
+
+
+def _body_force_regressor(vel, acc):
+    """K(v, a), (N, 6, 10): f = I a + v x* I v = K pi, pi = [m, hx, hy, hz, Ixx, Iyy, Izz, Ixy,
+    Ixz, Iyz] (h = m c, I about the body origin)."""
+    N = vel.shape[0]
+    w, vl = vel[:, :3], vel[:, 3:]
+    al, av = acc[:, :3], acc[:, 3:]
+
+    def L(x):  # I x = L(x) [Ixx, Iyy, Izz, Ixy, Ixz, Iyz]
+        out = np.zeros((x.shape[0], 3, 6))
+        out[:, 0, 0], out[:, 0, 3], out[:, 0, 4] = x[:, 0], x[:, 1], x[:, 2]
+        out[:, 1, 1], out[:, 1, 3], out[:, 1, 5] = x[:, 1], x[:, 0], x[:, 2]
+        out[:, 2, 2], out[:, 2, 4], out[:, 2, 5] = x[:, 2], x[:, 0], x[:, 1]
+        return out
+
+    Sw, Sv, Sa, Sal = _skew(w), _skew(vl), _skew(av), _skew(al)
+    K = np.zeros((N, 6, 10))
+    K[:, :3, 4:] = L(al) + Sw @ L(w)
+    K[:, :3, 1:4] = -Sa - Sw @ Sv + Sv @ Sw
+    K[:, 3:, 0] = av + np.cross(w, vl)
+    K[:, 3:, 1:4] = Sal + Sw @ Sw
+    return K
+
+
+_STD_SUFFIX = ("m", "mx", "my", "mz", "Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz")
+# Priority when choosing which standard column represents a group (earlier = kept):
+# joint-axis inertias before masses (the classical regrouping into ZZ_j), base-side bodies first.
+_PRIORITY = {"Izz": 0, "Iyy": 1, "Ixx": 2, "Ixy": 3, "Ixz": 4, "Iyz": 5, "mx": 6, "my": 7, "mz": 8, "m": 9}
+
+
+@dataclass
+class _Node:
+    body: object
+    joint: object
+    parent: int  # index into nodes, -1 = world (or a body welded to it)
+    R_WP: np.ndarray  # orientation of the parent body in world (used when parent == -1)
+    kind: str  # "revolute", "prismatic", "weld"
+    X_PF: object
+    X_BM: object
+    X_FM: object  # for welds
+    axis: np.ndarray  # joint axis in F (= M)
+    S: np.ndarray  # (6,) motion subspace in B coordinates
+    qi: int
+    vi: int
+
+
+class InverseDynamicsRegressor:
+    """Regressor ``tau = Y(q, v, vdot) theta_base`` (gravity included) derived from a URDF.
+
+    Build with :meth:`from_robot` (cached per (urdf, load, method)).  Attributes: ``n``,
+    ``standard_names``, ``base_names``, ``method`` ("symbolic" or "numeric"), ``K``
+    (theta_base = K pi), ``base_index`` (standard columns kept), ``derivation_time`` (s).
+    """
+
+    def __init__(self, plant, method: str = "auto", *, urdf: str = "", load: str = "none",
+                 rank_tol: float = 1e-9, seed: int = 0):
+        t0 = time.perf_counter()
+        self.plant = plant
+        self.urdf = urdf
+        self.load = load
+        self.n = plant.num_velocities()
+        if plant.num_positions() != self.n:
+            raise RobustDrakeError("only arms with one position per velocity (no quaternions) are supported")
+        if method == "auto":
+            method = "symbolic" if self.n <= 2 else "numeric"
+        if method not in ("symbolic", "numeric"):
+            raise RobustDrakeError(f"unknown regressor method {method!r}: use 'auto', 'symbolic' or 'numeric'")
+        self.method = method
+        self._context = plant.CreateDefaultContext()
+        self._build_tree()
+        self._build_extras()
+        self.standard_names = tuple(
+            f"{s}_{nd.body.name()}" for nd in self._nodes for s in _STD_SUFFIX
+        ) + tuple(name for name, _, _ in self._extras)
+        self.p_standard = len(self.standard_names)
+        if method == "symbolic":
+            self._build_symbolic()
+        self._find_base_set(rank_tol, seed)
+        self.derivation_time = time.perf_counter() - t0
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def from_robot(cls, robot_or_urdf, load: str = "none", method: str = "auto") -> "InverseDynamicsRegressor":
+        """Regressor of a robot name in ``robust_drake.models.ROBOTS`` or a ``.urdf`` path."""
+        from robust_drake.models import make_plant, resolve_urdf
+
+        path = resolve_urdf(robot_or_urdf, load)
+        key = (str(path), os.path.getmtime(path), load, method)
+        with _CACHE_LOCK:
+            hit = _CACHE.get(key)
+        if hit is not None:
+            return hit
+        plant = make_plant(str(path))
+        reg = cls(plant, method, urdf=str(path), load=load)
+        with _CACHE_LOCK:
+            _CACHE[key] = reg
+        return reg
+
+    def _build_tree(self):
+        from pydrake.multibody.tree import JointIndex
+
+        plant = self.plant
+        world = plant.world_body().index()
+        fixed = {b.index() for b in plant.GetBodiesWeldedTo(plant.world_body())}
+        inboard = {}
+        for i in range(plant.num_joints()):
+            j = plant.get_joint(JointIndex(i))
+            inboard[j.child_body().index()] = j
+        nodes, pos = [], {}
+        ctx0 = plant.CreateDefaultContext()  # poses of bodies welded to the world do not depend on q
+
+        def visit(bidx):
+            if bidx in pos or bidx in fixed:
+                return pos.get(bidx, -1)
+            j = inboard.get(bidx)
+            if j is None:
+                raise RobustDrakeError(f"body {plant.get_body(bidx).name()} has no inboard joint (floating base?)")
+            parent = visit(j.parent_body().index())
+            tname = j.type_name()
+            if tname == "revolute":
+                kind = "revolute"
+            elif tname == "prismatic":
+                kind = "prismatic"
+            elif tname == "weld":
+                kind = "weld"
+            else:
+                raise RobustDrakeError(
+                    f"joint {j.name()} of type {tname!r} is not supported (revolute, prismatic, weld)"
+                )
+            X_PF = j.frame_on_parent().GetFixedPoseInBodyFrame()
+            X_BM = j.frame_on_child().GetFixedPoseInBodyFrame()
+            axis = np.zeros(3)
+            S = np.zeros(6)
+            X_FM = None
+            qi = vi = -1
+            if kind == "weld":
+                X_FM = j.X_FM()
+            else:
+                axis = np.asarray(j.revolute_axis() if kind == "revolute" else j.translation_axis(), float)
+                axis = axis / np.linalg.norm(axis)
+                R_BM = X_BM.rotation().matrix()
+                a_B = R_BM @ axis
+                if kind == "revolute":
+                    S[:3] = a_B
+                    S[3:] = np.cross(X_BM.translation(), a_B)
+                else:
+                    S[3:] = a_B
+                qi, vi = j.position_start(), j.velocity_start()
+            R_WP = plant.EvalBodyPoseInWorld(ctx0, j.parent_body()).rotation().matrix()
+            nodes.append(_Node(plant.get_body(bidx), j, parent, R_WP, kind, X_PF, X_BM, X_FM, axis, S, qi, vi))
+            pos[bidx] = len(nodes) - 1
+            return pos[bidx]
+
+        for b in range(plant.num_bodies()):
+            from pydrake.multibody.tree import BodyIndex
+
+            bidx = BodyIndex(b)
+            if bidx != world:
+                visit(bidx)
+        self._nodes = nodes
+        self._moving_joints = [nd for nd in nodes if nd.kind != "weld"]
+        if len(self._moving_joints) != self.n:
+            raise RobustDrakeError("every velocity must belong to a revolute or prismatic joint")
+
+    def _build_extras(self):
+        """Reflected rotor inertia and joint damping columns where the URDF has them."""
+        from pydrake.multibody.tree import JointActuatorIndex
+
+        plant, ctx = self.plant, self._context
+        extras = []  # (name, kind "Ia"/"b", velocity index)
+        for i in range(plant.num_actuators()):
+            act = plant.get_joint_actuator(JointActuatorIndex(i))
+            if act.default_reflected_inertia() != 0.0:
+                extras.append((f"Ia_{act.joint().name()}", "Ia", act.joint().velocity_start()))
+        for nd in self._moving_joints:
+            if np.any(nd.joint.default_damping_vector() != 0.0):
+                extras.append((f"b_{nd.joint.name()}", "b", nd.vi))
+        self._extras = extras
+        self._ctx_for_params = ctx
+
+    # ------------------------------------------------------------------ standard regressor (numeric)
+    def _standard_numeric(self, q, v, vd):
+        N = q.shape[0]
+        nodes = self._nodes
+        g = self.plant.gravity_field().gravity_vector()
+        g = np.asarray(g, dtype=float)
+        vel, acc, X = [None] * len(nodes), [None] * len(nodes), [None] * len(nodes)
+        zero = np.zeros((N, 6))
+        for k, nd in enumerate(nodes):
+            R_PF, p_PF = nd.X_PF.rotation().matrix(), nd.X_PF.translation()
+            R_BM, p_BM = nd.X_BM.rotation().matrix(), nd.X_BM.translation()
+            R_MB = R_BM.T
+            p_MB = -R_MB @ p_BM
+            if nd.kind == "weld":
+                R_FM = np.broadcast_to(nd.X_FM.rotation().matrix(), (N, 3, 3))
+                p_FM = np.broadcast_to(nd.X_FM.translation(), (N, 3))
+            elif nd.kind == "revolute":
+                R_FM = _rot_axis(nd.axis, q[:, nd.qi])
+                p_FM = np.zeros((N, 3))
+            else:
+                R_FM = np.broadcast_to(np.eye(3), (N, 3, 3))
+                p_FM = q[:, nd.qi, None] * nd.axis
+            R_PM = R_PF @ R_FM
+            p_PM = p_PF + np.einsum("ij,nj->ni", R_PF, p_FM)
+            R_PB = R_PM @ R_MB
+            p_PB = p_PM + np.einsum("nij,j->ni", R_PM, p_MB)
+            Xk = _motion_transform(R_PB, p_PB)
+            X[k] = Xk
+            vP = zero if nd.parent < 0 else vel[nd.parent]
+            if nd.parent < 0:  # parent fixed to the world: a = -gravity, in the parent's frame
+                aP = np.zeros((N, 6))
+                aP[:, 3:] = -(nd.R_WP.T @ g)
+            else:
+                aP = acc[nd.parent]
+            vk = np.einsum("nij,nj->ni", Xk, vP)
+            ak = np.einsum("nij,nj->ni", Xk, aP)
+            if nd.kind != "weld":
+                qd, qdd = v[:, nd.vi], vd[:, nd.vi]
+                vJ = qd[:, None] * nd.S
+                vk = vk + vJ
+                ak = ak + qdd[:, None] * nd.S + _crm_times(vk, vJ)
+            vel[k], acc[k] = vk, ak
+        p = self.p_standard
+        F = [np.zeros((N, 6, p)) for _ in nodes]
+        for k, nd in enumerate(nodes):
+            F[k][:, :, 10 * k:10 * k + 10] = _body_force_regressor(vel[k], acc[k])
+        Y = np.zeros((N, self.n, p))
+        for k in range(len(nodes) - 1, -1, -1):
+            nd = nodes[k]
+            if nd.kind != "weld":
+                Y[:, nd.vi, :] = np.einsum("i,nip->np", nd.S, F[k])
+            if nd.parent >= 0:
+                F[nd.parent] += np.einsum("nji,njp->nip", X[k], F[k])
+        self._add_extras(Y, v, vd)
+        return Y
+
+    def _add_extras(self, Y, v, vd):
+        base = 10 * len(self._nodes)
+        for c, (_, kind, vi) in enumerate(self._extras):
+            Y[:, vi, base + c] = vd[:, vi] if kind == "Ia" else v[:, vi]
+
+    # ------------------------------------------------------------------ symbolic route
+    def _build_symbolic(self):
+        from pydrake.multibody.tree import (
+            JointActuatorIndex,
+            MultibodyForces_,
+            SpatialInertia_,
+            UnitInertia_,
+        )
+        from pydrake.symbolic import DecomposeLumpedParameters, Expression, MakeVectorVariable, Variable
+
+        t0 = time.perf_counter()
+        plant_s = self.plant.ToSymbolic()
+        ctx = plant_s.CreateDefaultContext()
+        n = self.n
+        qv = MakeVectorVariable(n, "q")
+        vv = MakeVectorVariable(n, "v")
+        av = MakeVectorVariable(n, "vd")
+        params = []
+        self._sym_param_vars = []  # per node: (m, c[3], G[6])
+        for nd in self._nodes:
+            b = plant_s.get_body(nd.body.index())
+            nm = nd.body.name()
+            m = Variable(f"m_{nm}")
+            c = [Variable(f"c{ax}_{nm}") for ax in "xyz"]
+            G = [Variable(f"G{s}_{nm}") for s in ("xx", "yy", "zz", "xy", "xz", "yz")]
+            M = SpatialInertia_[Expression](
+                Expression(m), np.array([Expression(x) for x in c]),
+                UnitInertia_[Expression](*[Expression(x) for x in G]), skip_validity_check=True,
+            )
+            b.SetSpatialInertiaInBodyFrame(ctx, M)
+            self._sym_param_vars.append((m, c, G))
+            params += [m] + c + G
+        for i in range(plant_s.num_actuators()):  # reflected inertia: columns added analytically
+            plant_s.get_joint_actuator(JointActuatorIndex(i)).SetRotorInertia(ctx, Expression(0.0))
+        for nd in self._moving_joints:  # damping: columns added analytically
+            plant_s.get_joint(nd.joint.index()).SetDampingVector(ctx, np.zeros(1))
+        plant_s.SetPositions(ctx, np.array([Expression(x) for x in qv]))
+        plant_s.SetVelocities(ctx, np.array([Expression(x) for x in vv]))
+        forces = MultibodyForces_[Expression](plant_s)
+        plant_s.CalcForceElementsContribution(ctx, forces)
+        tau = plant_s.CalcInverseDynamics(ctx, np.array([Expression(x) for x in av]), forces)
+        W, alpha, w0 = DecomposeLumpedParameters(tau, np.array(params))
+        from pydrake.symbolic import ExpressionKind
+
+        for e in np.asarray(w0).ravel():
+            if not (e.get_kind() == ExpressionKind.Constant and abs(e.Evaluate()) < 1e-12):
+                raise RobustDrakeError(f"inverse dynamics has a parameter-free term {e}; not supported")
+        self._sym_time = time.perf_counter() - t0
+        self._W_fun = _compile_matrix(np.asarray(W), {"q": list(qv), "v": list(vv), "vd": list(av)})
+        self._alpha = np.asarray(alpha).ravel()
+        self._params_vars = params
+        self._A = self._alpha_linear_map()
+
+    def _alpha_linear_map(self):
+        """alpha (lumped parameters) = A pi (rigid-body standard parameters), found exactly by
+        evaluating alpha at m = pi_m, c = h/m, G = I/m for a valid point and unit steps."""
+        nb = len(self._nodes)
+        rng = np.random.default_rng(1)
+
+        def alpha_at(pi):
+            env = {}
+            for k, (m, c, G) in enumerate(self._sym_param_vars):
+                blk = pi[10 * k:10 * k + 10]
+                env[m] = blk[0]
+                for j in range(3):
+                    env[c[j]] = blk[1 + j] / blk[0]
+                for j in range(6):
+                    env[G[j]] = blk[4 + j] / blk[0]
+            return np.array([a.Evaluate(env) for a in self._alpha])
+
+        pi0 = np.zeros(10 * nb)
+        for k in range(nb):
+            pi0[10 * k:10 * k + 10] = [1.0 + k, 0.1, 0.2, 0.3, 2.0, 2.1, 2.2, 0.01, 0.02, 0.03]
+        f0 = alpha_at(pi0)
+        A = np.zeros((len(self._alpha), 10 * nb))
+        for j in range(10 * nb):
+            e = pi0.copy()
+            e[j] += 1.0
+            A[:, j] = alpha_at(e) - f0
+        # alpha must be linear in pi (parameterisation by unit inertia about the body origin)
+        pr = pi0 * (1.0 + 0.5 * rng.random(pi0.size))
+        if not np.allclose(alpha_at(pr), A @ pr, rtol=1e-9, atol=1e-12):
+            raise RobustDrakeError("lumped parameters are not linear in the standard parameters")
+        return A
+
+    def _standard_symbolic(self, q, v, vd):
+        W = self._W_fun(q, v, vd)  # (N, n, k)
+        N = q.shape[0]
+        Y = np.zeros((N, self.n, self.p_standard))
+        Y[:, :, :10 * len(self._nodes)] = W @ self._A
+        self._add_extras(Y, v, vd)
+        return Y
+
+    # ------------------------------------------------------------------ base set
+    def _find_base_set(self, rank_tol, seed):
+        rng = np.random.default_rng(seed)
+        p = self.p_standard
+        N = max(40, 3 * p // max(self.n, 1) + 10)
+        q = rng.uniform(-math.pi, math.pi, (N, self.n))
+        v = rng.normal(0, 2.0, (N, self.n))
+        vd = rng.normal(0, 5.0, (N, self.n))
+        Y = self._standard_numeric(q, v, vd).reshape(N * self.n, p)
+        order = sorted(range(p), key=self._priority)
+        norms = np.linalg.norm(Y, axis=0)
+        scale = np.where(norms > 0, norms, 1.0)
+        Yo = (Y / scale)[:, order]
+        nonzero = norms[order] > 1e-12 * max(norms.max(), 1.0)
+        Yo = Yo[:, nonzero]
+        cols = np.array(order)[nonzero]
+        from scipy.linalg import qr
+
+        R = qr(Yo, mode="r")[0]
+        d = np.abs(np.diag(R))
+        keep = np.sort(cols[d > rank_tol * max(d.max(), 1.0)])
+        drop = np.array([j for j in range(p) if j not in set(keep)], dtype=int)
+        Yb = Y[:, keep]
+        beta = np.zeros((len(keep), len(drop)))
+        if len(drop):
+            beta = np.linalg.lstsq(Yb, Y[:, drop], rcond=None)[0]
+            beta[np.abs(beta) < 1e-10] = 0.0
+            resid = np.linalg.norm(Yb @ beta - Y[:, drop]) / max(np.linalg.norm(Y), 1.0)
+            if resid > 1e-8:
+                raise RobustDrakeError(f"base-set reduction failed (residual {resid:.2e})")
+        K = np.zeros((len(keep), p))
+        K[np.arange(len(keep)), keep] = 1.0
+        if len(drop):
+            K[:, drop] = beta
+        self.base_index = keep
+        self.K = K
+        self.p_base = len(keep)
+        self.base_names = tuple(_combo_name(K[i], self.standard_names) for i in range(len(keep)))
+
+    def _priority(self, j):
+        nb = len(self._nodes)
+        if j >= 10 * nb:
+            return (2, 0, j)
+        k, s = divmod(j, 10)
+        return (0, _PRIORITY[_STD_SUFFIX[s]], k)
+
+    # ------------------------------------------------------------------ public API
+    @staticmethod
+    def _inputs(q, v, vdot, n):
+        arrs = [np.asarray(x, dtype=float) for x in (q, v, vdot)]
+        arrs = [a[None, :] if a.ndim == 1 else a for a in arrs]
+        if any(a.ndim != 2 or a.shape[1] != n for a in arrs) or len({a.shape[0] for a in arrs}) != 1:
+            raise RobustDrakeError(f"q, v, vdot must have shape (N, {n}) or ({n},) and equal N")
+        return arrs
+
+    def evaluate_standard(self, q, v, vdot) -> np.ndarray:
+        """Regressor for the standard parameters, (N, n, p_standard)."""
+        q, v, vd = self._inputs(q, v, vdot, self.n)
+        if self.method == "symbolic":
+            return self._standard_symbolic(q, v, vd)
+        return self._standard_numeric(q, v, vd)
+
+    def evaluate(self, q, v, vdot) -> np.ndarray:
+        """Base regressor Y, (N, n, p_base): tau = Y @ theta_base (gravity included)."""
+        return self.evaluate_standard(q, v, vdot)[:, :, self.base_index]
+
+    def torque(self, q, v, vdot, theta_base=None) -> np.ndarray:
+        """Inverse dynamics (N, n) from the regressor with theta_base (default: the URDF's)."""
+        th = self.base_parameters() if theta_base is None else np.asarray(theta_base, float)
+        return self.evaluate(q, v, vdot) @ th
+
+    def standard_parameters(self, plant=None, context=None) -> np.ndarray:
+        """pi: standard parameters read from ``context`` of ``plant`` (default: the URDF's values).
+
+        Bodies and joints are matched by name, so any plant built from the same URDF works.
+        """
+        plant = self.plant if plant is None else plant
+        ctx = plant.CreateDefaultContext() if context is None else context
+        pi = np.zeros(self.p_standard)
+        for k, nd in enumerate(self._nodes):
+            b = plant.GetBodyByName(nd.body.name(), nd.body.model_instance()) if plant is not self.plant \
+                else nd.body
+            M = b.CalcSpatialInertiaInBodyFrame(ctx)
+            m = M.get_mass()
+            I = M.CalcRotationalInertia().CopyToFullMatrix3()
+            pi[10 * k:10 * k + 10] = [m, *(m * M.get_com()), I[0, 0], I[1, 1], I[2, 2], I[0, 1], I[0, 2], I[1, 2]]
+        base = 10 * len(self._nodes)
+        for c, (name, kind, _) in enumerate(self._extras):
+            jname = name.split("_", 1)[1]
+            joint = plant.GetJointByName(jname)
+            if kind == "Ia":
+                act = [plant.get_joint_actuator(a) for a in plant.GetJointActuatorIndices()
+                       if plant.get_joint_actuator(a).joint().name() == jname][0]
+                pi[base + c] = act.calc_reflected_inertia(ctx)
+            else:
+                pi[base + c] = float(joint.GetDampingVector(ctx)[0])
+        return pi
+
+    def base_from_standard(self, pi) -> np.ndarray:
+        """theta_base = K pi (works on (..., p_standard) arrays)."""
+        return np.asarray(pi, dtype=float) @ self.K.T
+
+    def base_parameters(self, plant=None, context=None) -> np.ndarray:
+        """theta_base of the plant's (default: the URDF's) parameters."""
+        return self.base_from_standard(self.standard_parameters(plant, context))
+
+    def rank_report(self, q, v, vdot, tol: float = 1e-8) -> dict:
+        """Identifiability of the base parameters from the samples (q, v, vdot).
+
+        Returns ``{"rank", "p_base", "deficient", "condition", "unidentified"}`` where
+        ``unidentified`` lists base parameter names whose columns are (numerically) dependent on
+        the others for these samples.  ``deficient`` is True when rank < p_base.
+        """
+        Y = self.evaluate(q, v, vdot).reshape(-1, self.p_base)
+        norms = np.linalg.norm(Y, axis=0)
+        Ys = Y / np.where(norms > 0, norms, 1.0)
+        s = np.linalg.svd(Ys, compute_uv=False)
+        rank = int(np.sum(s > tol * max(s[0], 1e-300))) if s.size else 0
+        from scipy.linalg import qr
+
+        _, R, piv = qr(Ys, mode="economic", pivoting=True)
+        d = np.abs(np.diag(R))
+        dep = [self.base_names[piv[i]] for i in range(len(d)) if d[i] <= tol * max(d[0], 1e-300)]
+        dep += [self.base_names[piv[i]] for i in range(len(d), self.p_base)]
+        cond = float(s[0] / s[-1]) if s.size and s[-1] > 0 else float("inf")
+        return {"rank": rank, "p_base": self.p_base, "deficient": rank < self.p_base,
+                "condition": cond, "unidentified": dep}
+
+    def __repr__(self):
+        return (f"InverseDynamicsRegressor({pathlib.Path(self.urdf).name or 'plant'}, n={self.n}, "
+                f"p_standard={self.p_standard}, p_base={self.p_base}, method={self.method!r})")
+
+
+def _combo_name(row, names):
+    terms = []
+    for j in np.flatnonzero(np.abs(row) > 1e-12):
+        c = row[j]
+        if abs(c - 1.0) < 1e-12:
+            terms.append(names[j])
+        else:
+            terms.append(f"{c:.6g}*{names[j]}")
+    return " + ".join(terms).replace("+ -", "- ")
+
+
+_CACHE: dict = {}
+_CACHE_LOCK = threading.Lock()
+
+
+def clear_cache() -> None:
+    """Forget cached regressors (e.g. after editing a URDF in place)."""
+    with _CACHE_LOCK:
+        _CACHE.clear()
+
+
+# ----------------------------------------------------------------------------- expression compiler
+
+
+def _compile_matrix(W, groups):
+    """Compile a matrix of pydrake Expressions in the variables ``groups`` ({"q": [Variable...],
+    ...}) into ``f(q, v, vd) -> (N, rows, cols)``, one vectorised numpy function (common
+    subexpressions shared)."""
+    from pydrake.symbolic import ExpressionKind
+
+    var_code = {}
+    for g, vs in groups.items():
+        for i, x in enumerate(vs):
+            var_code[x.get_id()] = f"{g}[:, {i}]"
+    lines, memo = [], {}
+    unary = {
+        ExpressionKind.Sin: "np.sin", ExpressionKind.Cos: "np.cos", ExpressionKind.Tan: "np.tan",
+        ExpressionKind.Abs: "np.abs", ExpressionKind.Exp: "np.exp", ExpressionKind.Sqrt: "np.sqrt",
+        ExpressionKind.Log: "np.log", ExpressionKind.Asin: "np.arcsin", ExpressionKind.Acos: "np.arccos",
+        ExpressionKind.Atan: "np.arctan", ExpressionKind.Sinh: "np.sinh", ExpressionKind.Cosh: "np.cosh",
+        ExpressionKind.Tanh: "np.tanh",
+    }
+
+    def emit(e):
+        kind = e.get_kind()
+        if kind == ExpressionKind.Constant:
+            return repr(float(e.Evaluate()))
+        if kind == ExpressionKind.Var:
+            (x,) = list(e.GetVariables())
+            return var_code[x.get_id()]
+        key = e.to_string()
+        if key in memo:
+            return memo[key]
+        _, args = e.Unapply()
+        sub = [emit(a) if hasattr(a, "get_kind") else repr(float(a)) for a in args]
+        if kind == ExpressionKind.Add:
+            code = "(" + " + ".join(sub) + ")"
+        elif kind == ExpressionKind.Mul:
+            code = "(" + " * ".join(sub) + ")"
+        elif kind == ExpressionKind.Div:
+            code = f"({sub[0]} / {sub[1]})"
+        elif kind == ExpressionKind.Pow:
+            code = f"({sub[0]} ** {sub[1]})"
+        elif kind in unary:
+            code = f"{unary[kind]}({sub[0]})"
+        elif kind == ExpressionKind.Atan2:
+            code = f"np.arctan2({sub[0]}, {sub[1]})"
+        elif kind == ExpressionKind.Min:
+            code = f"np.minimum({sub[0]}, {sub[1]})"
+        elif kind == ExpressionKind.Max:
+            code = f"np.maximum({sub[0]}, {sub[1]})"
+        else:
+            raise RobustDrakeError(f"cannot compile expression kind {kind}")
+        name = f"t{len(memo)}"
+        lines.append(f"    {name} = {code}")
+        memo[key] = name
+        return name
+
+    rows, cols = W.shape
+    body = ["def _f(q, v, vd):", "    N = q.shape[0]"]
+    assigns = []
+    for i in range(rows):
+        for j in range(cols):
+            e = W[i, j]
+            if e.get_kind() == ExpressionKind.Constant and e.Evaluate() == 0.0:
+                continue
+            assigns.append(f"    out[:, {i}, {j}] = {emit(e)}")
+    src = "\n".join(body + lines + [f"    out = np.zeros((N, {rows}, {cols}))"] + assigns + ["    return out"])
+    ns = {"np": np}
+    exec(compile(src, "<regressor>", "exec"), ns)
+    f = ns["_f"]
+    f.source = src
+    return f
