@@ -23,6 +23,7 @@ from robust_drake.errors import RobustDrakeError
 COMMAND_MODULES = [
     "robust_drake.commands.simulate",
     "robust_drake.commands.demo",
+    "robust_drake.commands.bascetta",
     "robust_drake.commands.batch",
 ]
 
