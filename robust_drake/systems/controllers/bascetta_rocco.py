@@ -135,6 +135,7 @@ class BascettaRoccoController(DiscreteController):
 
 # --------------------------------------------------------------------------- design
 _DESIGN_CACHE: dict = {}
+_BOUNDS_CACHE: dict = {}
 
 
 def case_study_design(robot="siciliano_2link", trajectory="line", trajectory_params=None, K_P=25.0,
@@ -163,20 +164,25 @@ def case_study_design(robot="siciliano_2link", trajectory="line", trajectory_par
                 None if Q is None else np.asarray(Q).tolist(), delta, gamma, margin))
     if key in _DESIGN_CACHE:
         return _DESIGN_CACHE[key]
-    arm = get_arm(robot)
-    ref = make_reference(arm, trajectory, **trajectory_params)
-    nominal = ModelDynamics(robot, None, load)
-    perturbed = ModelDynamics(robot, perturbation, load)
-    n = nominal.n
+    bkey = repr((robot, load, trajectory, sorted(trajectory_params.items()), sorted(perturbation.items()),
+                 region, tube, n_time))
+    if bkey not in _BOUNDS_CACHE:
+        arm = get_arm(robot)
+        ref = make_reference(arm, trajectory, **trajectory_params)
+        nominal = ModelDynamics(robot, None, load)
+        perturbed = ModelDynamics(robot, perturbation, load)
+        n = nominal.n
+        M_hat = np.diag(np.diag(nominal.M(np.zeros(n))))
+        t = np.arange(0.0, ref.duration + 1e-12, 1e-3)
+        q_d, qd_d, qdd_d = ref(t)
+        idx = np.linspace(0, len(t) - 1, n_time).round().astype(int)
+        configs = sample_configurations(region, n, q_d=q_d[idx], tube=tube)
+        _BOUNDS_CACHE[bkey] = (M_hat, compute_bounds(nominal.M, nominal.n_term, perturbed.n_term, M_hat, configs,
+                                                     qd_d, qdd_d, region=region))
+    M_hat, bounds = _BOUNDS_CACHE[bkey]
+    n = M_hat.shape[0]
     kp = diag_gain(K_P, n, "K_P")
     kd = diag_gain(K_D, n, "K_D")
-    M_hat = np.diag(np.diag(nominal.M(np.zeros(n))))
-    t = np.arange(0.0, ref.duration + 1e-12, 1e-3)
-    q_d, qd_d, qdd_d = ref(t)
-    idx = np.linspace(0, len(t) - 1, n_time).round().astype(int)
-    configs = sample_configurations(region, n, q_d=q_d[idx], tube=tube)
-    bounds = compute_bounds(nominal.M, nominal.n_term, perturbed.n_term, M_hat, configs, qd_d, qdd_d,
-                            region=region)
     lyap = lyapunov_design(np.diag(kp), np.diag(kd), Q)
     ric = design_riccati(np.diag(kp), np.diag(kd), alpha=bounds.alpha, delta=delta, gamma=gamma, margin=margin)
     out = {

@@ -1,0 +1,119 @@
+"""Bascetta & Rocco section V on the Siciliano arm: designs, closed loops, CLI contract."""
+
+import json
+
+import numpy as np
+import pytest
+
+from robust_drake.analysis import lemmas
+from robust_drake.experiments.bascetta import run_case_study, simulate_case
+from robust_drake.systems.controllers.bascetta_rocco import (
+    ModelDynamics,
+    case_study_design,
+    inverse_dynamics_law,
+)
+
+
+@pytest.fixture(scope="module")
+def designs():
+    return case_study_design(K_P=25.0, K_D=5.0), case_study_design(K_P=100.0, K_D=10.0)
+
+
+@pytest.fixture(scope="module")
+def study():
+    return run_case_study((25.0, 5.0), keep_results=True)
+
+
+def test_nominal_and_perturbed_models():
+    nom = ModelDynamics("siciliano_2link")
+    per = ModelDynamics("siciliano_2link", {"link1": 1.2, "link2": 1.2})
+    q = np.zeros(2)
+    # textbook M at q = 0: 2 I + m l^2 + m (a^2 + l^2 + 2 a l) + 5 kg motor at the elbow + 100 kg m^2 rotor
+    assert nom.M(q)[0, 0] == pytest.approx(250.01, abs=1e-6)
+    assert nom.M(q)[1, 1] == pytest.approx(122.5, abs=1e-6)
+    # gravity at the stretched pose: (50*0.5 + 5*1 + 50*1.5) g; +20 % on the link masses only
+    assert nom(q, np.zeros(2))[0] == pytest.approx(105 * 9.81, rel=1e-9)
+    assert per(q, np.zeros(2))[0] == pytest.approx((1.2 * 100 + 5) * 9.81, rel=1e-9)
+
+
+def test_case_b_beta1_independent_of_pd_gains_case_a_grows(designs):
+    d1, d2 = designs
+    assert d2["beta_B"] == pytest.approx(d1["beta_B"], rel=1e-12)
+    assert d2["beta_A"][1] > 3.5 * d1["beta_A"][1]  # ||[K_P K_D]|| goes 25.5 -> 100.5
+    assert d1["beta_A"][1] > d1["beta_B"][1]
+    assert d1["beta_A"][0] == pytest.approx(d1["beta_B"][0]) and d1["beta_A"][2] == pytest.approx(d1["beta_B"][2])
+    b = d1["bounds"]
+    assert 0 < b.alpha < 1 and b.B_m <= b.B_M
+    # Riccati design admissible: alpha <= gamma < gamma_max, and every lemma certified at both gain sets
+    for d in designs:
+        r = d["riccati"]
+        assert b.alpha <= r.gamma < r.gamma_max
+        c = lemmas.check_all(r.kappa01, r.kappa02, r.delta, r.gamma)
+        assert all(c[f"lemma{i}"]["ok"] for i in range(1, 6)), c
+    # equal zeta: the kappas, hence P0, are the same; delta doubles with omega_n
+    assert np.allclose(d1["riccati"].P0, d2["riccati"].P0, rtol=1e-6)
+
+
+def test_law_without_error_is_feedforward():
+    M_hat = np.diag([250.0, 122.5])
+    BtP = np.array([[0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
+    q = np.array([0.3, 0.4])
+    u, w, rho = inverse_dynamics_law(q, np.zeros(2), np.array([1.0, 2.0]), q, np.zeros(2), np.full(2, 25.0),
+                                     np.full(2, 5.0), M_hat, np.array([10.0, 20.0]), BtP, [2.0, 1.0, 1.0], 0.01)
+    assert np.allclose(w, 0) and rho == pytest.approx(2.0)
+    assert np.allclose(u, M_hat @ [1.0, 2.0] + [10.0, 20.0])
+    # inside the boundary layer w is linear in z, outside it has norm rho
+    e_v = np.array([1.0, 0.0])
+    _, w_out, rho_out = inverse_dynamics_law(q, e_v, np.zeros(2), q, np.zeros(2), np.full(2, 25.0), np.full(2, 5.0),
+                                             M_hat, np.zeros(2), BtP, [2.0, 0.0, 0.0], 0.01)
+    assert np.linalg.norm(w_out) == pytest.approx(2.0)
+
+
+def test_both_cases_track_the_line_and_b_spends_less(study):
+    A, B = study["A"], study["B"]
+    for s in (A, B):
+        assert not s["diverged"]
+        assert max(s["error_max"]) < 0.01  # rad, with the 20 % mass error in n_hat
+        assert max(s["velocity_error_max"]) < 0.05
+    # the sampled bounds hold while the error stays in the 0.1 rad tube they were computed on
+    assert max(A["error_max"] + B["error_max"]) < 0.1
+    # rho(||e||) >= beta_0 and Case B's rho is below Case A's
+    assert A["rho_peak"] >= A["beta"][0] and B["rho_rms"] < A["rho_rms"]
+    # energy (2-norm) of w lower in Case B (paper: 11 %)
+    assert B["w_energy_total"] < A["w_energy_total"]
+    assert study["w_energy_reduction_B_vs_A"] > 0
+    r = study["riccati"]
+    assert r["residual"] < 1e-8 and min(r["P0_eigs"]) > 1.0
+
+
+def test_robust_term_is_what_rejects_the_perturbation(study):
+    # same loop with w switched off (beta = 0): plain inverse dynamics with the wrong n_hat
+    res0, _ = simulate_case_no_w()
+    err0 = np.max(np.abs(res0.q - res0.q_d))
+    errB = max(study["B"]["error_max"])
+    assert err0 > 5 * errB, (err0, errB)
+
+
+def simulate_case_no_w():
+    from robust_drake.diagram import ClosedLoopConfig, build_closed_loop
+
+    cfg = ClosedLoopConfig(robot="siciliano_2link", controller="bascetta_b",
+                           controller_params={"K_P": 25.0, "K_D": 5.0, "beta": [0.0, 0.0, 0.0]},
+                           trajectory="line", observer="exact", plant_friction=None,
+                           encoder_resolution=None, torque_limit=None)
+    cl = build_closed_loop(cfg)
+    return cl.simulate(), cl.controller
+
+
+def test_cli_json_contract(capsys):
+    from robust_drake.cli import main
+
+    status = main(["bascetta", "--gains", "25,5", "--duration", "0.3", "--json"])
+    assert status == 0
+    d = json.loads(capsys.readouterr().out)
+    for case in ("A", "B"):
+        assert set(["beta", "w_energy", "rho_peak", "rho_rms", "error_max"]) <= set(d[case])
+        assert len(d[case]["beta"]) == 3 and len(d[case]["w_energy"]) == 2 and len(d[case]["error_max"]) == 2
+    assert set(["gamma", "gamma_max", "P0", "residual"]) <= set(d["riccati"])
+    assert np.array(d["riccati"]["P0"]).shape == (2, 2)
+    assert main(["bascetta", "--gains", "25"]) == 2
