@@ -186,7 +186,8 @@ class ClosedLoop:
         self.reference = make_reference(self.arm, c.trajectory, **dict(c.trajectory_params))
         if self.reference.n != n:
             raise RobustDrakeError(f"trajectory {c.trajectory!r} has {self.reference.n} joints, robot has {n}")
-        src = builder.AddSystem(ReferenceTrajectory(self.reference))
+        src = builder.AddSystem(ReferenceTrajectory(self.reference, self.period))
+        self.reference_source = src
         src.set_name("reference")
         x_d = src.get_output_port(0)
 
@@ -226,6 +227,12 @@ class ClosedLoop:
             comp.set_name("friction_compensation")
             builder.Connect(u, comp.GetInputPort("u"))
             v_src = obs.GetOutputPort("v_sampled") if obs.HasOutputPort("v_sampled") else obs.GetOutputPort("v")
+            if v_src.size() != n:  # v_sampled = [v, v_error]: keep v
+                from pydrake.systems.primitives import MatrixGain
+                sel = builder.AddSystem(MatrixGain(np.eye(n, v_src.size())))
+                sel.set_name("v_sampled_select")
+                builder.Connect(v_src, sel.get_input_port(0))
+                v_src = sel.get_output_port(0)
             builder.Connect(v_src, comp.GetInputPort("v"))
             u_cmd = comp.get_output_port(0)
             self.compensation = comp
@@ -283,7 +290,6 @@ class ClosedLoop:
         self._logs = {
             "state": LogVectorOutput(plant.get_state_output_port(), builder, T),
             "x_d": LogVectorOutput(x_d, builder, T),
-            "q_meas": LogVectorOutput(q_meas, builder, T),
             "u": LogVectorOutput(u, builder, T),
             "tau": LogVectorOutput(tau, builder, T),
         }
@@ -330,6 +336,7 @@ class ClosedLoop:
             q0_meas = q0 if c.encoder_resolution is None else quantize(q0, c.encoder_resolution)
             self.observer.set_initial(obs_ctx, q0_meas, q_d0, qd_d0)
 
+        self.reference_source.tabulate(duration)
         simulator = Simulator(self.diagram, context)
         steps = max(1, math.ceil(self.period / MAX_INTEGRATOR_STEP - 1e-9))
         ResetIntegratorFromFlags(simulator, "runge_kutta2", self.period / steps)
@@ -358,7 +365,7 @@ class ClosedLoop:
         tau = logs["tau"].data().T
         res = SimulationResult(
             t=t, q=q, v=v, q_d=XD[:, :n], qd_d=XD[:, n:2 * n], qdd_d=XD[:, 2 * n:],
-            q_meas=logs["q_meas"].data().T,
+            q_meas=q if c.encoder_resolution is None else quantize(q, c.encoder_resolution),
             v_hat=logs["v_hat"].data().T[:, :n] if "v_hat" in logs else None,
             u=logs["u"].data().T, tau=tau, metrics=metrics,
             torque_stats=torque_statistics(t, tau) if len(t) > 1 else {},

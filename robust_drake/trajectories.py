@@ -179,17 +179,42 @@ class Reference:
 
 
 class ReferenceTrajectory(LeafSystem):
-    """Source system with output ``x_d`` = [q_d, qd_d, qdd_d] (3n) from a :class:`Reference`."""
+    """Source system with output ``x_d`` = [q_d, qd_d, qdd_d] (3n) from a :class:`Reference`.
 
-    def __init__(self, reference: Reference):
+    With ``period`` and ``duration`` given, the reference is tabulated once (vectorised) at
+    the sample instants k*period, and the output at a sample instant is a table look-up;
+    at any other time it is computed exactly. This keeps numpy work out of the 2500 Hz path.
+    """
+
+    def __init__(self, reference: Reference, period: float | None = None, duration: float | None = None):
         super().__init__()
         self.reference = reference
         n = reference.n
         self._n = n
+        self._period = period
+        self._table = None
+        if period is not None and duration is not None:
+            self.tabulate(duration)
         self.DeclareVectorOutputPort("x_d", 3 * n, self._calc)
 
+    def tabulate(self, duration: float) -> None:
+        """(Re)build the look-up table for samples 0..ceil(duration/period)."""
+        if self._period is None:
+            return
+        k = np.arange(int(math.ceil(duration / self._period)) + 2)
+        q, qd, qdd = self.reference(k * self._period)
+        self._table = np.ascontiguousarray(np.hstack([q, qd, qdd]))
+
     def _calc(self, context, output):
-        q, qd, qdd = self.reference(context.get_time())
+        t = context.get_time()
+        table = self._table
+        if table is not None:
+            x = t / self._period
+            k = int(round(x))
+            if abs(x - k) < 1e-6 and k < table.shape[0]:
+                output.SetFromVector(table[k])
+                return
+        q, qd, qdd = self.reference(t)
         out = output.get_mutable_value()
         n = self._n
         out[:n] = q

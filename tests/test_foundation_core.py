@@ -129,7 +129,7 @@ def test_d2r2_regressor_is_the_model():
         M = np.array([[th[0] + th[1] + 2 * th[2] * c2, th[1] + th[2] * c2], [th[1] + th[2] * c2, th[1]]])
         h = -th[2] * s2
         C = np.array([[h * qd[1], h * (qd[0] + qd[1])], [-h * qd[0], 0.0]])
-        assert np.allclose(d2r2_regressor_single(q, qd, v, a) @ th, M @ a + C @ v, atol=1e-12)
+        assert np.allclose(np.asarray(d2r2_regressor_single(q, qd, v, a)) @ th, M @ a + C @ v, atol=1e-12)
 
 
 def test_spong_robust_inputs():

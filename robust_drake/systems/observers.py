@@ -20,7 +20,8 @@ and :meth:`advance` (new history).
 from __future__ import annotations
 
 import numpy as np
-from pydrake.systems.framework import LeafSystem
+from pydrake.common.value import AbstractValue
+from pydrake.systems.framework import LeafSystem, ValueProducer
 
 from robust_drake.errors import RobustDrakeError
 
@@ -41,6 +42,10 @@ class DiscreteObserver(LeafSystem):
         self._h_index = self.DeclareDiscreteState(int(history_size))
         self._vs_index = self.DeclareDiscreteState(2 * self.n)
         self.DeclarePeriodicDiscreteUpdateEvent(self.period, 0.0, self._update)
+        # (v, v_error) computed once per context change and shared by both outputs and the update
+        self._estimate_cache = self.DeclareCacheEntry(
+            "velocity estimate", ValueProducer(
+                allocate=lambda: AbstractValue.Make(np.zeros(2 * self.n)), calc=self._calc_estimate))
         self.DeclareVectorOutputPort("v", self.n, self._calc_v)
         self.DeclareVectorOutputPort("v_error", self.n, self._calc_v_error)
         self.DeclareStateOutputPort("v_sampled", self._vs_index)
@@ -64,23 +69,26 @@ class DiscreteObserver(LeafSystem):
         n = self.n
         return self._q_port.Eval(context), x_d[:n], x_d[n:2 * n]
 
-    def _calc_v(self, context, output):
+    def _calc_estimate(self, context, abstract_value):
         q, q_d, qd_d = self._inputs(context)
         h = context.get_discrete_state(self._h_index).get_value()
-        v, _ = self.estimate(h, q, q_d, qd_d, context.get_time())
-        output.get_mutable_value()[:] = v
+        v, ve = self.estimate(h, q, q_d, qd_d, context.get_time())
+        out = abstract_value.get_mutable_value()
+        out[:self.n] = v
+        out[self.n:] = ve
+
+    def _calc_v(self, context, output):
+        output.get_mutable_value()[:] = self._estimate_cache.Eval(context)[:self.n]
 
     def _calc_v_error(self, context, output):
-        q, q_d, qd_d = self._inputs(context)
-        h = context.get_discrete_state(self._h_index).get_value()
-        _, ve = self.estimate(h, q, q_d, qd_d, context.get_time())
-        output.get_mutable_value()[:] = ve
+        output.get_mutable_value()[:] = self._estimate_cache.Eval(context)[self.n:]
 
     def _update(self, context, discrete_state):
         q, q_d, qd_d = self._inputs(context)
         t = context.get_time()
         h = context.get_discrete_state(self._h_index).get_value()
-        v, ve = self.estimate(h, q, q_d, qd_d, t)
+        est = self._estimate_cache.Eval(context)
+        v, ve = est[:self.n].copy(), est[self.n:].copy()
         discrete_state.get_mutable_vector(self._h_index).get_mutable_value()[:] = self.advance(
             h, q, q_d, qd_d, v, ve, t)
         vs = discrete_state.get_mutable_vector(self._vs_index).get_mutable_value()
@@ -113,26 +121,34 @@ class AveragingVelocityObserver(DiscreteObserver):
         self.N = int(n_avg)
         super().__init__(n, period, history_size=(2 * self.N) * n, name="AveragingVelocityObserver")
 
-    def _split(self, h):
-        n, N = self.n, self.N
-        q_hist = h[: N * n].reshape(N, n)
-        qt_prev = h[N * n:(N + 1) * n]
-        e_hist = h[(N + 1) * n:].reshape(N - 1, n)
-        return q_hist, qt_prev, e_hist
-
     def estimate(self, h, q, q_d, qd_d, t):
-        q_hist, qt_prev, e_hist = self._split(h)
-        T, N = self.period, self.N
-        v = (q - q_hist[N - 1]) / (N * T)
-        qt = q - q_d
-        ve = ((qt - qt_prev) / T + e_hist.sum(axis=0)) / N
+        # scalar loops: this runs at every tick (numpy on 2-vectors costs more than it saves)
+        n, N, T = self.n, self.N, self.period
+        h, q, q_d = h.tolist(), q.tolist(), q_d.tolist()
+        base_qt = N * n
+        base_e = (N + 1) * n
+        v = [0.0] * n
+        ve = [0.0] * n
+        for j in range(n):
+            qj = q[j]
+            v[j] = (qj - h[(N - 1) * n + j]) / (N * T)
+            acc = (qj - q_d[j] - h[base_qt + j]) / T
+            for i in range(N - 1):
+                acc += h[base_e + i * n + j]
+            ve[j] = acc / N
         return v, ve
 
     def advance(self, h, q, q_d, qd_d, v, v_error, t):
-        q_hist, _, e_hist = self._split(h)
-        new_q = np.concatenate([q, q_hist[:-1].ravel()])
-        new_e = np.concatenate([v_error, e_hist[:-1].ravel()]) if self.N > 1 else np.zeros(0)
-        return np.concatenate([new_q, q - q_d, new_e])
+        n, N = self.n, self.N
+        out = np.empty_like(h)
+        out[n:N * n] = h[:(N - 1) * n]  # shift positions
+        out[:n] = q
+        out[N * n:(N + 1) * n] = np.asarray(q) - np.asarray(q_d)
+        if N > 1:
+            base = (N + 1) * n
+            out[base + n:] = h[base:base + (N - 2) * n]
+            out[base:base + n] = v_error
+        return out
 
     def initial_history(self, q0, q_d0, qd_d0):
         n, N = self.n, self.N

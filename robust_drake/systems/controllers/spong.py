@@ -48,21 +48,22 @@ def spong_error_terms(q_d, qd_d, qdd_d, q, v_error, Lambda):
     return q_tilde, r, v, a
 
 
-def sp1_robust_input(xi, rho: float, epsilon: float) -> np.ndarray:
-    """JS eq. 18: u = -rho xi/||xi|| if ||xi|| > epsilon else -(rho/epsilon) xi, xi = Y^T r."""
-    xi = np.asarray(xi, dtype=float)
-    norm = math.sqrt(float(xi @ xi))
-    if norm > epsilon:
-        return -rho * xi / norm
-    return -(rho / epsilon) * xi
+def sp1_robust_input(xi, rho: float, epsilon: float) -> list:
+    """JS eq. 18: u = -rho xi/||xi|| if ||xi|| > epsilon else -(rho/epsilon) xi, xi = Y^T r.
+
+    Scalar Python math on purpose: it runs at every 2500 Hz tick on 3-vectors.
+    """
+    norm = math.sqrt(sum(x * x for x in xi))
+    g = rho / norm if norm > epsilon else rho / epsilon
+    return [-g * x for x in xi]
 
 
-def sp2_robust_input(xi, rho, epsilon) -> np.ndarray:
+def sp2_robust_input(xi, rho, epsilon) -> list:
     """JS eq. (SP2): componentwise u_i = -rho_i sgn(xi_i) outside |xi_i| <= epsilon_i, linear inside."""
-    xi = np.asarray(xi, dtype=float)
-    rho = np.asarray(rho, dtype=float)
-    eps = np.asarray(epsilon, dtype=float)
-    return np.where(np.abs(xi) > eps, -rho * np.sign(xi), -(rho / eps) * xi)
+    out = []
+    for x, r, e in zip(xi, rho, epsilon):
+        out.append(-r * math.copysign(1.0, x) if abs(x) > e else -(r / e) * x)
+    return out
 
 
 def spong_torque(Y, theta0, u, K, r) -> np.ndarray:
@@ -78,10 +79,11 @@ class PDController(DiscreteController):
         super().__init__(n, period, name="PDController")
         self.K = diag_gain(K, n, "K")
         self.Lambda = diag_gain(Lambda, n, "Lambda")
+        self._K, self._Lam = self.K.tolist(), self.Lambda.tolist()
 
     def compute(self, t, q_d, qd_d, qdd_d, q, v, v_error):
-        r = np.asarray(v_error) + self.Lambda * (np.asarray(q) - np.asarray(q_d))
-        return -self.K * r
+        K, Lam = self._K, self._Lam
+        return [-K[j] * (v_error[j] + Lam[j] * (q[j] - q_d[j])) for j in range(self.n)]
 
 
 class _SpongController(DiscreteController):
@@ -91,15 +93,27 @@ class _SpongController(DiscreteController):
         self.theta0 = np.asarray(theta0, dtype=float)
         self.K = diag_gain(K, n, "K")
         self.Lambda = diag_gain(Lambda, n, "Lambda")
+        self._Lam, self._K, self._theta0 = self.Lambda.tolist(), self.K.tolist(), self.theta0.tolist()
 
     def robust_input(self, xi):  # pragma: no cover - abstract
         raise NotImplementedError
 
     def compute(self, t, q_d, qd_d, qdd_d, q, v, v_error):
-        _, r, vref, a = spong_error_terms(q_d, qd_d, qdd_d, q, v_error, self.Lambda)
+        # eqs. 11 and 12 in scalar Python (same math as spong_error_terms / spong_torque)
+        n, Lam, K, th = self.n, self._Lam, self._K, self._theta0
+        q, v, q_d, qd_d, qdd_d, v_error = q.tolist(), v.tolist(), q_d.tolist(), qd_d.tolist(), qdd_d.tolist(), v_error.tolist()
+        r, vref, a = [0.0] * n, [0.0] * n, [0.0] * n
+        for j in range(n):
+            qt = q[j] - q_d[j]
+            qtd = v_error[j]
+            r[j] = qtd + Lam[j] * qt
+            vref[j] = qd_d[j] - Lam[j] * qt
+            a[j] = qdd_d[j] - Lam[j] * qtd
         Y = self.regressor(q, v, vref, a)
-        u = self.robust_input(Y.T @ r)
-        return spong_torque(Y, self.theta0, u, self.K, r)
+        p = len(th)
+        xi = [sum(Y[i][k] * r[i] for i in range(n)) for k in range(p)]
+        u = self.robust_input(xi)
+        return [sum(Y[i][k] * (th[k] + u[k]) for k in range(p)) - K[i] * r[i] for i in range(n)]
 
 
 class SpongSP1Controller(_SpongController):
@@ -122,9 +136,9 @@ class SpongSP2Controller(_SpongController):
     def __init__(self, n, period, regressor, theta0, rho, epsilon, K, Lambda):
         super().__init__(n, period, regressor, theta0, K, Lambda, "SpongSP2Controller")
         p = self.theta0.shape[0]
-        self.rho = np.broadcast_to(np.asarray(rho, dtype=float), (p,)).copy()
-        self.epsilon = np.broadcast_to(np.asarray(epsilon, dtype=float), (p,)).copy()
-        if np.any(self.rho < 0) or np.any(self.epsilon <= 0):
+        self.rho = np.broadcast_to(np.asarray(rho, dtype=float), (p,)).tolist()
+        self.epsilon = np.broadcast_to(np.asarray(epsilon, dtype=float), (p,)).tolist()
+        if min(self.rho) < 0 or min(self.epsilon) <= 0:
             raise RobustDrakeError("SP2 needs rho_i >= 0 and epsilon_i > 0")
 
     def robust_input(self, xi):
@@ -132,15 +146,15 @@ class SpongSP2Controller(_SpongController):
 
 
 # --------------------------------------------------------------------------- factories
-def d2r2_regressor_single(q, qd, v, a) -> np.ndarray:
-    """JS eq. 15 for one sample in scalar math (the per-tick path; the vectorised
-    reference implementation is :func:`robust_drake.regressor.d2r2_regressor`)."""
+def d2r2_regressor_single(q, qd, v, a) -> list:
+    """JS eq. 15 for one sample in scalar math, as nested lists (the per-tick path; the
+    vectorised implementation is :func:`robust_drake.regressor.d2r2_regressor`)."""
     c2 = math.cos(q[1])
     s2 = math.sin(q[1])
     a1, a2 = a[0], a[1]
     y13 = c2 * (2.0 * a1 + a2) - s2 * (qd[0] * v[1] + qd[1] * (v[0] + v[1]))
     y23 = c2 * a1 + s2 * qd[0] * v[0]
-    return np.array([[a1, a1 + a2, y13], [0.0, a1 + a2, y23]])
+    return [[a1, a1 + a2, y13], [0.0, a1 + a2, y23]]
 
 
 def _slotine_li_regressor(ctx, params):
