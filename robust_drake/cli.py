@@ -25,6 +25,9 @@ COMMAND_MODULES = [
     "robust_drake.commands.demo",
     "robust_drake.commands.bascetta",
     "robust_drake.commands.batch",
+    "robust_drake.commands.montecarlo",
+    "robust_drake.commands.compare",
+    "robust_drake.commands.sweep_rate",
 ]
 
 
