@@ -81,7 +81,8 @@ def _get_loop(scenario: Scenario, config, reuse: bool):
         loop = _LOOPS[key]
         fresh = config.resolved()
         # Per-run fields that ClosedLoop.simulate reads from its config.
-        for name in ("true_theta", "initial_q", "duration", "metrics_skip", "metrics_dt"):
+        for name in ("true_theta", "initial_q", "duration", "metrics_skip", "metrics_dt",
+                     "plant_setup"):
             if hasattr(fresh, name):
                 setattr(loop.config, name, getattr(fresh, name))
         return loop, 0.0

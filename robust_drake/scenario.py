@@ -58,7 +58,7 @@ __all__ = [
 #: Fields of ClosedLoopConfig a scenario may set through ``extra`` (everything plain-data).
 _CONFIG_EXTRA = {
     "compensation_params", "encoder_resolution", "torque_limit", "metrics_skip", "metrics_dt",
-    "initial_q", "effects", "plant_friction",
+    "initial_q", "effects", "plant_friction", "plant_setup",
 }
 
 
@@ -165,6 +165,8 @@ class Scenario:
                     f"allowed: {sorted(_CONFIG_EXTRA & config_fields)}")
             if k == "effects":
                 v = [tuple(e) for e in v]
+            elif k == "plant_setup":
+                v = [_plant_setup_callable(e) for e in v]
             kwargs[k] = v
         if "seed" in config_fields:  # if the builder grows randomness it gets the seed
             kwargs["seed"] = int(self.seed)
@@ -177,8 +179,30 @@ class Scenario:
         for k in ("true_theta", "duration", "seed", "draw", "tags"):
             d.pop(k, None)
         d["extra"] = {k: v for k, v in d["extra"].items()
-                      if k not in ("initial_q", "metrics_skip", "metrics_dt")}
+                      if k not in ("initial_q", "metrics_skip", "metrics_dt", "plant_setup")}
         return json.dumps(d, sort_keys=True, separators=(",", ":"))
+
+
+def _plant_setup_callable(entry):
+    """``["module:function", {params}]`` -> ``f(plant, plant_context)`` (serialisable form of
+    ClosedLoopConfig.plant_setup, e.g. Monte Carlo "true" parameters of a robot)."""
+    import functools
+    import importlib
+
+    if isinstance(entry, str):
+        target, params = entry, {}
+    elif isinstance(entry, (list, tuple)) and len(entry) in (1, 2) and isinstance(entry[0], str):
+        target, params = entry[0], (dict(entry[1]) if len(entry) == 2 else {})
+    else:
+        raise RobustDrakeError(
+            f"plant_setup entries must be 'module:function' or ['module:function', {{params}}], "
+            f"got {entry!r}")
+    module_name, _, func_name = target.partition(":")
+    try:
+        func = getattr(importlib.import_module(module_name), func_name)
+    except (ImportError, AttributeError) as exc:
+        raise RobustDrakeError(f"plant_setup {target!r} not found: {exc}") from None
+    return functools.partial(func, **params)
 
 
 def _normalise(x):
