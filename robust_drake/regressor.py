@@ -442,16 +442,21 @@ class InverseDynamicsRegressor:
                 ak = ak + qdd[:, None] * nd.S + _crm_times(vk, vJ)
             vel[k], acc[k] = vk, ak
         p = self.p_standard
-        F = [np.zeros((N, 6, p)) for _ in nodes]
-        for k, nd in enumerate(nodes):
-            F[k][:, :, 10 * k:10 * k + 10] = _body_force_regressor(vel[k], acc[k])
+        nb = len(nodes)
+        # F[k]: regressor of the total spatial force transmitted by body k's joint, in k's frame.
+        # Nodes are in topological order (children after parents), so body k's subtree only
+        # involves standard columns 10 k .. 10 nb: F[k] stores just those.
+        F = [np.zeros((N, 6, 10 * (nb - k))) for k in range(nb)]
+        for k in range(nb):
+            F[k][:, :, :10] = _body_force_regressor(vel[k], acc[k])
         Y = np.zeros((N, self.n, p))
-        for k in range(len(nodes) - 1, -1, -1):
+        for k in range(nb - 1, -1, -1):
             nd = nodes[k]
             if nd.kind != "weld":
-                Y[:, nd.vi, :] = np.einsum("i,nip->np", nd.S, F[k])
+                Y[:, nd.vi, 10 * k:10 * nb] = np.matmul(nd.S, F[k])
             if nd.parent >= 0:
-                F[nd.parent] += np.einsum("nji,njp->nip", X[k], F[k])
+                off = 10 * (k - nd.parent)
+                F[nd.parent][:, :, off:] += np.matmul(np.swapaxes(X[k], 1, 2), F[k])
         self._add_extras(Y, v, vd)
         return Y
 
