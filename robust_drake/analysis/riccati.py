@@ -134,15 +134,15 @@ def solve_eq17(kappa01: float, kappa02: float, gamma: float, method: str = "hami
     raise RobustDrakeError(f"unknown Riccati method {method!r}; use 'hamiltonian' or 'sdp'")
 
 
-def t_norm(kappa01: float, kappa02: float) -> float:
+def t_norm(kappa01: float, kappa02: float, rtol: float = 1e-10, n_sweep: int = 400) -> float:
     """``||t(s)||_inf`` with ``t(s) = B^T A0 [sI - (A0 + I)]^{-1} B`` (BR Lemma 2)."""
     A, B, C = eq17_data(kappa01, kappa02)
-    return hinf_norm_hamiltonian(A, B, C).norm
+    return hinf_norm_hamiltonian(A, B, C, rtol=rtol, n_sweep=n_sweep).norm
 
 
-def gamma_max(kappa01: float, kappa02: float) -> float:
+def gamma_max(kappa01: float, kappa02: float, rtol: float = 1e-10, n_sweep: int = 400) -> float:
     """Largest admissible gamma: ``1 / ||t||_inf`` (BR Lemma 5)."""
-    return 1.0 / t_norm(kappa01, kappa02)
+    return 1.0 / t_norm(kappa01, kappa02, rtol, n_sweep)
 
 
 def common_gains(K_P, K_D):
@@ -164,7 +164,7 @@ def kappas(kp: float, kd: float, delta: float):
     return kp / delta**2, kd / delta
 
 
-def delta_for_gamma(kp: float, kd: float, gamma_needed: float, iters: int = 60) -> float:
+def delta_for_gamma(kp: float, kd: float, gamma_needed: float, iters: int = 40) -> float:
     """Largest delta in (0, kd/2) with ``gamma_max(kappa(delta)) >= gamma_needed`` (bisection).
 
     gamma_max decreases with delta (larger delta = larger guaranteed decay rate but a harder
@@ -179,7 +179,7 @@ def delta_for_gamma(kp: float, kd: float, gamma_needed: float, iters: int = 60) 
         )
     for _ in range(iters):
         mid = 0.5 * (lo + hi)
-        ok = conditions16(*kappas(kp, kd, mid)) and gamma_max(*kappas(kp, kd, mid)) >= gamma_needed
+        ok = conditions16(*kappas(kp, kd, mid)) and gamma_max(*kappas(kp, kd, mid), 1e-7, 60) >= gamma_needed
         lo, hi = (mid, hi) if ok else (lo, mid)
     return lo
 
