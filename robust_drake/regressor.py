@@ -513,7 +513,8 @@ class InverseDynamicsRegressor:
             if not (e.get_kind() == ExpressionKind.Constant and abs(e.Evaluate()) < 1e-12):
                 raise RobustDrakeError(f"inverse dynamics has a parameter-free term {e}; not supported")
         self._sym_time = time.perf_counter() - t0
-        self._W_fun = _compile_matrix(np.asarray(W), {"q": list(qv), "v": list(vv), "vd": list(av)})
+        self._W_expr, self._sym_qva = np.asarray(W), (list(qv), list(vv), list(av))
+        self._W_fun = _compile_matrix(self._W_expr, {"q": list(qv), "v": list(vv), "vd": list(av)})
         self._alpha = np.asarray(alpha).ravel()
         self._params_vars = params
         self._A = self._alpha_linear_map()

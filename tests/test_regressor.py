@@ -234,3 +234,23 @@ def test_inputs_cache_and_errors():
         a.evaluate(np.zeros((3, 2)), np.zeros((3, 2)), np.zeros((4, 2)))
     with pytest.raises(RobustDrakeError):
         d2r2_regressor(np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3))
+
+
+def test_joint_damping_becomes_a_parameter(tmp_path):
+    """A URDF with joint damping: Drake adds it through CalcForceElementsContribution; the
+    regressor carries it as a base parameter b_<joint> (viscous column v_j)."""
+    src = resolve_urdf("siciliano_2link").read_text()
+    damped = src.replace('<joint name="joint2" type="continuous">',
+                         '<joint name="joint2" type="continuous">\n    <dynamics damping="0.7"/>')
+    path = tmp_path / "damped.urdf"
+    path.write_text(damped)
+    plant = make_plant(str(path))
+    ctx = plant.CreateDefaultContext()
+    q, v, vd = _states(2, 10, seed=30)
+    tau = drake_inverse_dynamics(plant, ctx, q, v, vd)
+    for method in ("numeric", "symbolic"):
+        reg = InverseDynamicsRegressor.from_robot(str(path), method=method)
+        assert "b_joint2" in reg.base_names
+        assert reg.base_parameters()[reg.base_names.index("b_joint2")] == pytest.approx(0.7)
+        tau_r = reg.evaluate(q, v, vd) @ reg.base_parameters()
+        assert np.abs(tau_r - tau).max() <= 1e-9 * np.abs(tau).max()
