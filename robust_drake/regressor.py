@@ -306,7 +306,7 @@ class InverseDynamicsRegressor:
         from robust_drake.models import make_plant, resolve_urdf
 
         path = resolve_urdf(robot_or_urdf, load)
-        key = (str(path), os.path.getmtime(path), load, method)
+        key = (str(path), os.path.getmtime(path), method)  # the path already encodes the load
         with _CACHE_LOCK:
             hit = _CACHE.get(key)
         if hit is not None:
@@ -639,8 +639,7 @@ class InverseDynamicsRegressor:
         ctx = plant.CreateDefaultContext() if context is None else context
         pi = np.zeros(self.p_standard)
         for k, nd in enumerate(self._nodes):
-            b = plant.GetBodyByName(nd.body.name(), nd.body.model_instance()) if plant is not self.plant \
-                else nd.body
+            b = nd.body if plant is self.plant else self._match_body(plant, nd.body)
             M = b.CalcSpatialInertiaInBodyFrame(ctx)
             m = M.get_mass()
             I = M.CalcRotationalInertia().CopyToFullMatrix3()
@@ -656,6 +655,23 @@ class InverseDynamicsRegressor:
             else:
                 pi[base + c] = float(joint.GetDampingVector(ctx)[0])
         return pi
+
+    def _match_body(self, plant, body):
+        """The body of ``plant`` with the same name (and model-instance name) as ``body``."""
+        inst_name = self.plant.GetModelInstanceName(body.model_instance())
+        if plant.HasModelInstanceNamed(inst_name):
+            inst = plant.GetModelInstanceByName(inst_name)
+            if plant.HasBodyNamed(body.name(), inst):
+                return plant.GetBodyByName(body.name(), inst)
+        if plant.HasBodyNamed(body.name()):
+            return plant.GetBodyByName(body.name())
+        raise RobustDrakeError(f"plant has no body named {body.name()!r}: not built from {self.urdf or 'this model'}")
+
+    def __reduce__(self):
+        # Drake plants do not pickle: rebuild from the URDF (e.g. in dask workers).
+        if not self.urdf:
+            raise TypeError("an InverseDynamicsRegressor built from a plant (not a URDF) cannot be pickled")
+        return (InverseDynamicsRegressor.from_robot, (self.urdf, "none", self.method))
 
     def base_from_standard(self, pi) -> np.ndarray:
         """theta_base = K pi (works on (..., p_standard) arrays)."""

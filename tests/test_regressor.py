@@ -228,6 +228,17 @@ def test_inputs_cache_and_errors():
     assert InverseDynamicsRegressor.from_robot("d2r2") is a
     b = InverseDynamicsRegressor.from_robot(str(resolve_urdf("d2r2")))
     np.testing.assert_allclose(b.base_parameters(), a.base_parameters())
+    import pickle
+
+    c = pickle.loads(pickle.dumps(a))  # rebuilt from the URDF (plants do not pickle)
+    assert c.base_names == a.base_names and c.method == a.method
+    # another plant of the same URDF inside a diagram: parameters matched by body name
+    from pydrake.systems.framework import DiagramBuilder
+
+    from robust_drake.models import add_arm
+
+    plant, _ = add_arm(DiagramBuilder(), "d2r2")
+    np.testing.assert_allclose(a.base_parameters(plant), a.base_parameters())
     with pytest.raises(RobustDrakeError):
         InverseDynamicsRegressor.from_robot("d2r2", method="magic")
     with pytest.raises(RobustDrakeError):
