@@ -319,7 +319,9 @@ def set_d2r2_theta(plant, context, theta) -> None:
     lc2 = theta3 / (m2 l1) and I2 = theta2 - m2 lc2^2 > 0; if that is impossible, m2 is moved
     inside the feasible interval theta3^2 / (l1^2 theta2) < m2 < theta1 / l1^2 (geometric mean of
     the bounds).  Link 1 keeps m1 and gets m1 lc1^2 + I1 = theta1 - m2 l1^2.  Bodies welded to
-    link 2 (a payload) are folded into link 2: their own inertia is set to zero.
+    link 2 (a payload) are folded into link 2: their own inertia is set to zero.  A reflected
+    rotor inertia on joint 1 is kept (it is part of theta1); one on joint 2 is not representable.
+    Meant for horizontal arms (it moves centres of mass, which changes gravity torques).
     Raises RobustDrakeError if theta is not physically realisable
     (needs theta1 > 0, theta2 > 0, theta3^2 < theta1 theta2).
     """
@@ -334,16 +336,27 @@ def set_d2r2_theta(plant, context, theta) -> None:
         )
     j1, j2, l1 = _joint2_offset(plant)
     body1, body2 = j1.child_body(), j2.child_body()
+    reflected = {}
+    for a in plant.GetJointActuatorIndices():
+        act = plant.get_joint_actuator(a)
+        reflected[act.joint().index()] = act.calc_reflected_inertia(context)
+    if reflected.get(j2.index(), 0.0) != 0.0:
+        raise RobustDrakeError(
+            "joint 2 has a reflected rotor inertia: the JS parameterisation (eq. 14) cannot represent it"
+        )
+    Ia1 = reflected.get(j1.index(), 0.0)  # adds to theta1 like a link-1 inertia
     welded2 = [b for b in plant.GetBodiesWeldedTo(body2) if b.index() != body2.index()]
     m2 = body2.get_mass(context) + sum(b.get_mass(context) for b in welded2)
     lo = th3 * th3 / (l1 * l1 * th2)
-    hi = th1 / (l1 * l1)
+    hi = (th1 - Ia1) / (l1 * l1)
     margin = 1e-9 * hi
     if not (lo + margin < m2 < hi - margin):
         m2 = math.sqrt(max(lo, 1e-12) * hi) if lo > 0 else 0.5 * hi
     lc2 = th3 / (m2 * l1)
     I2 = th2 - m2 * lc2 * lc2
-    R1 = th1 - m2 * l1 * l1
+    R1 = th1 - Ia1 - m2 * l1 * l1
+    if not R1 > 0:
+        raise RobustDrakeError(f"theta1 = {th1} is smaller than joint 1's reflected inertia {Ia1}")
     m1 = body1.get_mass(context)
     lc1 = float(body1.CalcCenterOfMassInBodyFrame(context)[0])
     if not (m1 * lc1 * lc1 < R1):

@@ -261,3 +261,15 @@ def test_dfki_a0_geometry(plants):
     for q in np.random.default_rng(0).uniform(-3, 3, (5, 2)):
         plant.SetPositions(ctx, q)
         assert plant.CalcPotentialEnergy(ctx) > V0
+
+
+def test_set_d2r2_theta_on_arm_with_joint1_rotor_inertia():
+    """IMI SCARA: joint-1 reflected inertia stays and counts in theta1; joint-2 rotor refused."""
+    plant = make_plant("imi_scara")
+    ctx = plant.CreateDefaultContext()
+    theta = (4.8, 0.03, -0.04)  # theta3 < 0: centre of mass behind the elbow
+    set_d2r2_theta(plant, ctx, theta)
+    np.testing.assert_allclose(d2r2_theta_from_plant(plant, ctx), theta, rtol=1e-12)
+    dfki = make_plant("dfki_double_pendulum_c1")
+    with pytest.raises(RobustDrakeError, match="joint 2 has a reflected rotor inertia"):
+        set_d2r2_theta(dfki, dfki.CreateDefaultContext(), (0.1, 0.05, 0.03))
