@@ -13,7 +13,6 @@ $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet -e ".[test]"
-	$(BIN)/python -m ipykernel install --user --name robust_drake >/dev/null 2>&1 || true
 	touch $(STAMP)
 
 venv: $(STAMP)
