@@ -16,7 +16,6 @@ the circle (section 10). :func:`zc_bounds` recomputes the betas from the paramet
 
 from __future__ import annotations
 
-import itertools
 import math
 
 import numpy as np
@@ -62,8 +61,11 @@ def zc_bounds(theta_unloaded, theta_loaded, n_grid: int = 721):
     """beta0, beta1, beta2 of JS eqs. 21-23 and 28 for the D2R2 over the parameter box.
 
     ``M(q)`` is linear in theta = (th1, th2, th3) (eq. 14): ``d11 = th1 + th2 + 2 th3 c2``,
-    ``d12 = th2 + th3 c2``, ``d22 = th2``. lambda_min is concave and lambda_max convex in M, so
-    their extremes over the box lie at its vertices; q2 is gridded. For eq. 28, ``C v`` has
+    ``d12 = th2 + th3 c2``, ``d22 = th2``. As in appendix 12.2 the bounds are taken over the
+    unloaded and the maximum-loaded arm (and so over every arm on the segment between them:
+    lambda_min is concave and lambda_max convex in M); q2 is gridded. (Over the whole box of
+    parameter intervals beta0 would drop to 0.004: a corner with th2 at its minimum and th3 at
+    its maximum is not a physical arm.) For eq. 28, ``C v`` has
     ``y_i = q'^T L_i v`` with ``L_1 = h [[0, 1], [1, 1]]``, ``L_2 = h [[-1, 0], [0, 0]]`` and
     ``|h| <= th3``, so ``beta2 = max th3 * sqrt(phi^2 + 1)`` (phi = golden ratio, the spectral
     norm of [[0, 1], [1, 1]]).
@@ -74,7 +76,7 @@ def zc_bounds(theta_unloaded, theta_loaded, n_grid: int = 721):
         raise RobustDrakeError("zc_bounds needs the 3 D2R2 parameters of JS eq. 14 for each arm")
     c2 = np.cos(np.linspace(0.0, 2 * np.pi, n_grid))
     lmin, lmax = np.inf, -np.inf
-    for vert in itertools.product(*zip(lo, hi)):
+    for vert in (lo, hi):
         t1, t2, t3 = vert
         d11 = t1 + t2 + 2 * t3 * c2
         d12 = t2 + t3 * c2
