@@ -165,8 +165,11 @@ def imi_realisable(theta, m2: float = 4.0, m1: float = 12.0, lc1: float = 0.2, I
                    l1: float = 0.359, min_central: float = 1e-4) -> bool:
     """Can a rigid link 2 (mass >= m2, chosen freely upwards) and a link 1 plus a rotor with
     nonnegative inertia realise CI's inertial theta[0:4]? Needs Gamma2z > |m2 s2|^2 / m2 and
-    Gamma1z-part theta[0] - m2 l1^2 - (I1c + m1 lc1^2) >= 0."""
+    Gamma1z-part theta[0] - m2 l1^2 - (I1c + m1 lc1^2) >= 0; and, for an 8-entry theta,
+    nonnegative Coulomb and viscous coefficients theta[4:8] (friction cannot add energy)."""
     th = np.asarray(theta, float)
+    if th.size >= 8 and np.any(th[4:8] < 0):  # friction must dissipate (CI eq. 16)
+        return False
     h2 = th[1] ** 2 + th[2] ** 2
     if not th[3] > min_central:
         return False
