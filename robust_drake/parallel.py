@@ -49,8 +49,9 @@ __all__ = ["RunOutcome", "run_parallel", "iter_parallel", "default_workers", "mp
 #: when the forkserver preloads pydrake (see BUILD_NOTES "Batch and Monte Carlo").
 START_METHOD = "forkserver" if "forkserver" in multiprocessing.get_all_start_methods() else "spawn"
 
-#: Modules imported once in the fork server so every worker starts with them loaded.
-FORKSERVER_PRELOAD = ["numpy", "pydrake.all"]
+#: Modules imported once in the fork server so every worker starts with them loaded
+#: (a failing import here is ignored by multiprocessing; the worker then imports lazily).
+FORKSERVER_PRELOAD = ["numpy", "pydrake.all", "robust_drake.diagram"]
 
 
 @dataclass
