@@ -251,3 +251,13 @@ def test_compare_rejects_unknown_table(capsys):
 
     assert main(["compare", "--table", "9"]) == 2
     assert "tables 2-7" in capsys.readouterr().err
+
+
+def test_lg_plus_beats_lg_on_the_loaded_arm(cpt):
+    """Section 3.3: with the nominal parameters at the unloaded arm (LG) the loaded arm tracked
+    poorly; centring them (LG+) fixes it. Table 5 setting (compensation, maximum load)."""
+    lg = js.run_specs([js.run_spec(5, "lg")], workers=1, progress=False)[0]
+    assert not lg["diverged"], lg
+    plus = cpt[5]["lgplus"]
+    assert plus["error_task"] < lg["error_task"], (plus["error_task"], lg["error_task"])
+    assert plus["error1"] < lg["error1"], (plus["error1"], lg["error1"])
