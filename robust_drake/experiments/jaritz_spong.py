@@ -307,6 +307,11 @@ def plot_sweep(rows: list[dict], path) -> pathlib.Path:
         rate = [r["rate"] for r in rs]
         a1.semilogx(rate, [r["error_task"] for r in rs], "o-", label=LABELS.get(c, c))
         a2.loglog(rate, [r["chattering"] for r in rs], "o-", label=LABELS.get(c, c))
+    rates = sorted({r["rate"] for r in rows})
+    for ax in (a1, a2):
+        ax.set_xticks(rates)
+        ax.set_xticklabels([f"{x:g}" for x in rates])
+        ax.minorticks_off()
     a1.set_xlabel("sample rate [Hz]")
     a1.set_ylabel("|error_task| [m]")
     a2.set_xlabel("sample rate [Hz]")
