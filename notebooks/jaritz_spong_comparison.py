@@ -85,6 +85,19 @@ for table in (5, 7):
     plt.show()
 
 # %% [markdown]
+# ## The other joint-space trajectories (section 4)
+# The reference-model step (eq. 47) and the sinusoid (eq. 49); the paper publishes no tables
+# for them (see its report [5]). Same controllers, table 1 epsilons, friction compensation.
+
+# %%
+other_duration = 0.4 if SHORT else None
+for traj in ("refmodel", "sine"):
+    specs = [dict(js.run_spec(4, c, duration=other_duration), trajectory=traj, table=None) for c in js.CONTROLLERS]
+    for r in js.run_specs(specs, workers=WORKERS, progress=not SHORT):
+        print(f"{traj:8s} {js.LABELS[r['controller']]:4s} |error_task| = {r['error_task']:.5f} m  "
+              f"maxerr_task = {r['maxerr_task']:.5f} m  diverged = {r['diverged']}")
+
+# %% [markdown]
 # ## Velocity estimators (section 6)
 # SP1 with compensation on the CPT with each estimator: Euler difference (eq. 60), filtered
 # derivative (eqs. 61-63), averaging (eqs. 64/66 and eq. 67), the Kalman filter (section 6.1)
