@@ -82,6 +82,19 @@ def main():
           f"identical metrics: {same}")
     print(f"sum of per-scenario wall times: 1 worker {serial['wall_seconds'].sum():.2f} s, "
           f"{args.workers} workers {par['wall_seconds'].sum():.2f} s")
+    cpu1, cpu2 = serial["cpu_seconds"].sum(), par["cpu_seconds"].sum()
+    print(f"sum of per-scenario CPU times: 1 worker {cpu1:.2f} s, {args.workers} workers "
+          f"{cpu2:.2f} s (ratio {cpu2 / cpu1:.2f}: work per scenario is the same in workers)")
+    from robust_drake.parallel import run_parallel
+
+    t0 = time.perf_counter()
+    run_parallel(abs, [-1] * args.workers, workers=args.workers, progress=False)
+    t_pool = time.perf_counter() - t0
+    print(f"pool start-up + shutdown (trivial items, fork server already running): "
+          f"{t_pool:.3f} s")
+    if os.getloadavg()[0] > 1.5:
+        print("NOTE: the machine is busy (load average above): the wall-time ratio is not a "
+              "measure of the code; rerun on an idle machine")
 
     b, s = build_overhead(args.duration)
     print(f"diagram build: {1e3 * b:.1f} ms per scenario vs {1e3 * s:.0f} ms simulation "

@@ -5,7 +5,8 @@
 each finishes. Each row holds the scenario's parameters, the six JS error criteria
 (eqs. 55, 56, 58, 59: ``error1, maxerr1, error2, maxerr2, error_task, maxerr_task``), torque
 statistics per joint (``tau_peak<i>``, ``tau_rms<i>``, ``tau_tv<i>`` = total variation per
-second), ``wall_seconds``, ``build_seconds``, ``status`` (``ok`` / ``diverged`` / ``failed``)
+second), ``wall_seconds``, ``cpu_seconds`` (this process's CPU time: on a shared machine
+``wall_seconds`` grows with the load, ``cpu_seconds`` does not), ``build_seconds``, ``status`` (``ok`` / ``diverged`` / ``failed``)
 and ``error`` (the message, for failed or diverged runs).
 
 Crash safety. Every finished row is written at once to its own small Parquet file in
@@ -120,6 +121,7 @@ def run_scenario(scenario: Scenario | dict, *, reuse: bool = True,
     row.update(status="failed", error=None, build_seconds=0.0, sim_seconds=0.0,
                worker=f"{socket.gethostname()}:{os.getpid()}")
     t0 = time.perf_counter()
+    c0 = time.process_time()
     try:
         config = scenario.to_config()
         loop, build = _get_loop(scenario, config, reuse)
@@ -152,6 +154,7 @@ def run_scenario(scenario: Scenario | dict, *, reuse: bool = True,
         row["status"] = "failed"
         row["error"] = _summarise(exc)[0]
     row["wall_seconds"] = time.perf_counter() - t0
+    row["cpu_seconds"] = time.process_time() - c0
     row["finished_at"] = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
     return row
 

@@ -282,7 +282,7 @@ def test_dask_local_cluster_matches_in_process():
     clear_loop_cache()
     local = run_batch(scenarios, workers=1, progress=False)
     with distributed.LocalCluster(n_workers=2, processes=True, threads_per_worker=1,
-                                  dashboard_address=None) as cluster:
+                                  dashboard_address=":0") as cluster:
         remote = run_batch(scenarios, scheduler=cluster.scheduler_address, progress=False)
         with distributed.Client(cluster) as client:
             worker_pids = set(client.run(os.getpid).values())

@@ -117,7 +117,7 @@ def test_bad_arguments():
 def test_dask_local_cluster_client_and_address():
     distributed = pytest.importorskip("distributed")
     with distributed.LocalCluster(n_workers=2, processes=True, threads_per_worker=1,
-                                  dashboard_address=None) as cluster:
+                                  dashboard_address=":0") as cluster:
         # By address (what `--scheduler tcp://...` does): a client is opened and closed.
         outcomes = run_parallel(job_sqrt, ITEMS, scheduler=cluster.scheduler_address,
                                 progress=False)
