@@ -261,3 +261,25 @@ def test_lg_plus_beats_lg_on_the_loaded_arm(cpt):
     plus = cpt[5]["lgplus"]
     assert plus["error_task"] < lg["error_task"], (plus["error_task"], lg["error_task"])
     assert plus["error1"] < lg["error1"], (plus["error1"], lg["error1"])
+
+
+def test_zc_guarantee_is_loose_for_the_papers_epsilon():
+    """Eqs. 24, 26, 27 with K = diag(30, 10), Lambda = diag(50, 20): alpha < 10 / 1.3254 and the
+    tolerance for epsilon = 25 is s = sqrt(25 * 1.3254 / (10 * 0.0276)) / alpha."""
+    from robust_drake.systems.controllers.zenieh_corless import zc_guarantee
+
+    g = zc_guarantee(epsilon=25.0)
+    assert g["alpha_max"] == pytest.approx(10 / 1.3254)
+    assert g["s"] == pytest.approx(math.sqrt(25 * 1.3254 / (10 * 0.0276)) * 1.3254 / 10)
+    assert zc_guarantee(epsilon=45.0)["s"] > g["s"]  # the circle's larger epsilon loosens it
+
+
+def test_a_failed_run_is_reported_and_the_others_complete():
+    """The nonlinear observer refuses 500 Hz (its Euler poles leave the unit circle); the table
+    machinery reports that run's error and still returns the good run."""
+    good = js.run_spec(4, "sp1", duration=0.1)
+    bad = js.run_spec(4, "sp1", duration=0.1, rate=500.0, observer="nonlinear")
+    rows = js.run_specs([bad, good], workers=1, progress=False)
+    assert "unstable" in rows[0]["error"] and math.isnan(rows[0]["error_task"])
+    assert "error" not in rows[1] and rows[1]["error_task"] > 0
+    assert "FAILED" in js.format_paper_table(4, rows)

@@ -91,6 +91,20 @@ def zc_bounds(theta_unloaded, theta_loaded, n_grid: int = 721):
     return lmin, lmax, beta2
 
 
+def zc_guarantee(K=K_DEFAULT, Lambda=LAMBDA_DEFAULT, beta0=BETA0, beta1=BETA1, epsilon=EPSILON_CPT):
+    """What the ZC design guarantees (JS eqs. 24, 26, 27): the largest convergence rate
+    ``alpha_max = min(lambda_min Lambda, lambda_min K / beta1)`` and, at that rate, the smallest
+    tolerance ``s = sqrt(epsilon beta1 / (lambda_min K beta0)) / alpha`` that eq. 27 allows.
+
+    For the paper's numbers (epsilon = 25): alpha_max = 7.5 1/s and s = 1.45, a very loose
+    guarantee, which is the conservatism the paper blames for ZC's larger errors (section 9).
+    """
+    kmin = min(K)
+    alpha = min(min(Lambda), kmin / beta1)
+    s = math.sqrt(epsilon * beta1 / (kmin * beta0)) / alpha
+    return {"alpha_max": alpha, "s": s}
+
+
 class ZeniehCorlessController(DiscreteController):
     """ZC (JS eq. 25) as a discrete controller at the sample rate (held torque)."""
 
