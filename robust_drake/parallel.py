@@ -231,6 +231,7 @@ def _iter_indexed(func, items, keys, workers, desc, progress, scheduler, start_m
 
     bar = _make_bar(len(items), desc, progress)
     failed = 0
+    bar.set_postfix(failed=0, refresh=False)
     try:
         for i, outcome in source:
             if not outcome.ok:
