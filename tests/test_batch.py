@@ -231,7 +231,8 @@ def test_incremental_file_resume_and_fingerprint(tmp_path):
 
 def test_killed_batch_process_loses_only_scenarios_in_flight(tmp_path):
     spec = tmp_path / "spec.yaml"
-    spec.write_text(f"duration: {SHORT}\ncontrollers: [pd, sp1, sp2]\nloads: [none, max]\n")
+    # 0.5 s loops: slow enough that the kill lands mid-batch even on a fast machine
+    spec.write_text("duration: 0.5\ncontrollers: [pd, sp1, sp2]\nloads: [none, max]\n")
     out = tmp_path / "k.parquet"
     parts = out.with_name(out.name + ".parts")
     env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))

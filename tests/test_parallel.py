@@ -21,7 +21,7 @@ def job_sqrt(x):
 
 
 def job_pid(x):
-    time.sleep(0.15)
+    time.sleep(0.4)  # long enough for the second worker to start even on a busy machine
     return os.getpid()
 
 
