@@ -174,9 +174,11 @@ class Scenario:
 
     def structure_key(self) -> str:
         """Scenarios with equal keys share one built Diagram (they differ only in what
-        :meth:`ClosedLoop.simulate` reads per run: true_theta, duration, initial_q, seed)."""
+        :meth:`ClosedLoop.simulate` reads per run: true_theta, duration, initial_q, the
+        metrics window, plant_setup). The seed stays in the key: a block seeded at build
+        time must not be reused across seeds."""
         d = self.canonical()
-        for k in ("true_theta", "duration", "seed", "draw", "tags"):
+        for k in ("true_theta", "duration", "draw", "tags"):
             d.pop(k, None)
         d["extra"] = {k: v for k, v in d["extra"].items()
                       if k not in ("initial_q", "metrics_skip", "metrics_dt", "plant_setup")}
