@@ -36,8 +36,37 @@ from robust_drake.identification.least_squares import (
 MIN_GAIN = 0.05
 CV_FOLDS = 4
 
+#: physically admissible range of each kind's main parameter: a candidate whose fit lands outside
+#: is rejected (e.g. torque_scale -> -1 is the trivial "model = 0" solution of an
+#: errors-in-variables column, not a motor-constant error)
+PLAUSIBLE = {
+    "torque_scale": ("gain_error", -0.5, 0.5),
+    "load_dependent_friction": ("load_coefficient", -0.5, 1.0),
+    "time_delay": ("delay", -0.005, 0.1),
+    "rotor_inertia": ("reflected_inertia", 0.0, np.inf),
+    "payload": ("mass", 0.0, np.inf),
+}
+
+
+def implausible(effect, coef) -> str:
+    """Empty string if the effect's fitted parameters are admissible, else the reason."""
+    rule = PLAUSIBLE.get(effect.kind)
+    if rule is None:
+        return ""
+    name, lo, hi = rule
+    try:
+        val = effect.parameters(coef).get(name)
+    except Exception as exc:  # noqa: BLE001
+        return f"parameters failed: {exc}"
+    vals = np.atleast_1d(np.asarray(val, dtype=float))
+    if np.any(vals < lo) or np.any(vals > hi):
+        return f"{name} = {np.round(vals, 4).tolist()} outside [{lo}, {hi}]"
+    return ""
+
 
 def effect_label(effect) -> str:
+    if isinstance(getattr(effect, "name", None), str):
+        return effect.name
     j = getattr(effect, "joint", None)
     extra = ""
     for attr in ("label",):
@@ -59,17 +88,18 @@ class ColumnCache:
         self.base = parallel_filter(data, np.concatenate([Yrb, Yfr], axis=2))
         self.base_names = nrb + nfr
         self.n_rigid = len(nrb)
-        self._effects: dict[int, tuple[np.ndarray, list[str]]] = {}
+        self._effects: dict = {}
 
     def effect(self, effect) -> tuple[np.ndarray, list[str]]:
-        key = id(effect)
+        # keyed by the object and holding a reference to it (an id() key could be reused)
+        key = (effect_label(effect), id(effect))
         if key not in self._effects:
             Y, names = effect.columns(self.data)
             Y = np.asarray(Y, float)
             if Y.ndim == 2:
                 Y = Y[:, :, None]
-            self._effects[key] = (parallel_filter(self.data, Y), list(names))
-        return self._effects[key]
+            self._effects[key] = (parallel_filter(self.data, Y), list(names), effect)
+        return self._effects[key][:2]
 
     def model(self, effects) -> tuple[np.ndarray, list[str], list[slice]]:
         blocks, names, slices = [self.base], list(self.base_names), []
@@ -92,16 +122,61 @@ def blocked_folds(data: IdentData, k: int = CV_FOLDS) -> list[np.ndarray]:
     return [fold == i for i in range(k)]
 
 
-def cv_score(Y, tau, weights, folds) -> float:
-    """Mean held-out weighted squared error over blocked folds."""
-    N, n, p = Y.shape
-    total, count = 0.0, 0
+def implicit_mask(effects, slices, p: int) -> tuple[list, np.ndarray]:
+    """Effects whose columns use the measured torque (torque_scale, load-dependent friction):
+    their prediction is implicit, tau_hat = m + Phi(tau_hat) c. Returns ([(effect, slice)], mask
+    of the explicit columns)."""
+    imp = [(e, sl) for e, sl in zip(effects, slices)
+           if getattr(e, "needs_tau", False) and not getattr(e, "uses_taud", False)]
+    mask = np.ones(p, bool)
+    for _, sl in imp:
+        mask[sl] = False
+    return imp, mask
+
+
+def predict_tau(cache: "ColumnCache", effects, theta, rows=None, iterations: int = 30) -> np.ndarray:
+    """Output-error prediction of the measured torque (N, n).
+
+    Equation error r = tau - Y theta is the right quantity to *fit* but not to *judge* a model
+    whose columns contain tau itself: a torque_scale column -tau_j with coefficient -> -1 would
+    shrink the equation error of joint j without predicting anything. So models are judged on
+    tau - tau_hat with tau_hat the fixed point of tau_hat = Y_explicit theta + Phi(tau_hat) c
+    (unfiltered Phi; a contraction for the admissible |c| < 1, see ``PLAUSIBLE``)."""
+    Y, _, slices = cache.model(effects)
+    rows = slice(None) if rows is None else rows
+    imp, mask = implicit_mask(effects, slices, Y.shape[2])
+    m = Y[rows][:, :, mask] @ theta[mask]
+    if not imp:
+        return m
+    d = cache.data
+    q, qd, qdd = d.q[rows], d.qd[rows], d.qdd[rows]
+    tau_hat = m.copy()
+    for _ in range(iterations):
+        new = m + sum(e.evaluate_columns(q, qd, qdd, tau_hat) @ theta[sl] for e, sl in imp)
+        done = np.max(np.abs(new - tau_hat)) < 1e-10
+        tau_hat = new
+        if done:
+            break
+    return tau_hat
+
+
+def cv_score(cache: "ColumnCache", effects, weights, folds) -> float:
+    """Mean held-out weighted squared output error over blocked folds (Gram matrices per fold)."""
+    from robust_drake.identification.least_squares import solve_gram
+
+    Y, _, _ = cache.model(effects)
+    tau = cache.data.tau
+    Yw = Y * weights[None, :, None]
+    bw = tau * weights[None, :]
+    Gs, gs = [], []
     for test in folds:
-        train = ~test
-        A = (Y[train] * weights[None, :, None]).reshape(-1, p)
-        b = (tau[train] * weights[None, :]).reshape(-1)
-        theta = np.linalg.lstsq(A, b, rcond=1e-10)[0]
-        r = (tau[test] - Y[test] @ theta) * weights[None, :]
+        Gs.append(np.einsum("nip,niq->pq", Yw[test], Yw[test], optimize=True))
+        gs.append(np.einsum("nip,ni->p", Yw[test], bw[test], optimize=True))
+    G_all, g_all = sum(Gs), sum(gs)
+    total, count = 0.0, 0
+    for test, Gf, gf in zip(folds, Gs, gs):
+        theta = solve_gram(G_all - Gf, g_all - gf, tol=1e-10)[0]
+        r = (tau[test] - predict_tau(cache, effects, theta, test)) * weights[None, :]
         total += float(np.sum(r**2))
         count += r.size
     return total / count
@@ -116,8 +191,9 @@ def n_effective(data: IdentData) -> float:
 
 def bic(rss_w: float, rows: int, p: int, n_eff_rows: float) -> float:
     """BIC with the likelihood scaled to the effective sample count (see module docstring)."""
-    ratio = n_eff_rows / rows
-    return n_eff_rows * np.log(rss_w / rows) + p * np.log(n_eff_rows) if rss_w > 0 else -np.inf * ratio
+    if rss_w <= 0:
+        return -np.inf
+    return n_eff_rows * np.log(rss_w / rows) + p * np.log(n_eff_rows)
 
 
 @dataclass
@@ -150,24 +226,33 @@ class SelectionResult:
 
 
 def forward_select(cache: ColumnCache, candidates: list, min_gain: float = MIN_GAIN,
-                   max_effects: int = 4, folds: int = CV_FOLDS, progress=None) -> SelectionResult:
-    """Greedy forward selection (see module docstring). ``progress(msg)`` is called per step."""
+                   max_effects: int = 4, folds: int = CV_FOLDS, progress=None, weights=None) -> SelectionResult:
+    """Greedy forward selection (see module docstring). ``progress(msg)`` is called per step.
+
+    ``weights`` (n,): per-joint row weights (default 1 / baseline residual RMS of each joint)."""
     data = cache.data
     tau = data.tau
-    Y0, names0, _ = cache.model([])
-    base = solve_ls(Y0, tau, names0, warn=False)
-    weights = 1.0 / np.maximum(base.rms, 1e-12)
+    if weights is None:
+        Y0, names0, _ = cache.model([])
+        base = solve_ls(Y0, tau, names0, warn=False)
+        weights = 1.0 / np.maximum(base.rms, 1e-12)
+    weights = np.asarray(weights, float)
     fmask = blocked_folds(data, folds)
     rows = data.N * data.n
     n_eff_rows = n_effective(data) * data.n
 
     def evaluate(effects):
         Y, names, slices = cache.model(effects)
-        score = cv_score(Y, tau, weights, fmask)
         fit = solve_ls(Y, tau, names, weights=weights, warn=False)
-        return score, bic(fit.rss_weighted, rows, fit.rank, n_eff_rows), fit, names, slices
+        for e, sl in zip(effects, slices):
+            why = implausible(e, fit.theta[sl])
+            if why:  # checked before the (costlier) cross validation
+                return np.inf, np.inf, fit, names, slices, why
+        score = cv_score(cache, effects, weights, fmask)
+        r = (tau - predict_tau(cache, effects, fit.theta)) * weights[None, :]
+        return score, bic(float(np.sum(r**2)), rows, fit.rank, n_eff_rows), fit, names, slices, ""
 
-    score, b, _, _, _ = evaluate([])
+    score, b, _, _, _, _ = evaluate([])
     baseline_score = score
     chosen, steps, pool = [], [], list(candidates)
     ranking = []
@@ -175,13 +260,16 @@ def forward_select(cache: ColumnCache, candidates: list, min_gain: float = MIN_G
         trials = []
         for e in pool:
             try:
-                s_e, b_e, fit, names, slices = evaluate(chosen + [e])
+                s_e, b_e, fit, names, slices, why = evaluate(chosen + [e])
             except Exception as exc:  # an effect that cannot build columns on these data
                 trials.append((np.inf, np.inf, e, f"columns failed: {exc}"))
                 continue
             new_names = names[slices[-1]]
             if any(nm in fit.unidentifiable for nm in new_names):
                 trials.append((np.inf, b_e, e, "not identifiable next to the current model"))
+                continue
+            if why:
+                trials.append((np.inf, b_e, e, f"implausible fit: {why}"))
                 continue
             trials.append((s_e, b_e, e, ""))
         trials.sort(key=lambda x: x[0])
@@ -191,7 +279,7 @@ def forward_select(cache: ColumnCache, candidates: list, min_gain: float = MIN_G
         s_best, b_best, e_best, _ = trials[0]
         gain = (score - s_best) / score if np.isfinite(s_best) else 0.0
         if not np.isfinite(s_best):
-            accepted, reason = False, "no identifiable candidate left"
+            accepted, reason = False, "no identifiable, plausible candidate left"
         elif gain < min_gain:
             accepted, reason = False, f"held-out gain {gain:.1%} < {min_gain:.0%}: stop"
         elif not b_best < b:
@@ -212,17 +300,19 @@ def forward_select(cache: ColumnCache, candidates: list, min_gain: float = MIN_G
                            final_score=score, weights=weights, ranking=ranking)
 
 
-def fit_model(cache: ColumnCache, effects, weighted: bool = True) -> tuple[LSResult, list[slice]]:
-    """Final (W)LS fit of baseline + effects on all fit data."""
+def fit_model(cache: ColumnCache, effects, weights=None) -> tuple[LSResult, list[slice]]:
+    """Final LS fit of baseline + effects on all fit data with fixed per-joint ``weights``
+    (the selection's baseline weights; None = OLS). ``residual``/``rms`` are output errors."""
     Y, names, slices = cache.model(effects)
-    res = solve_wls(Y, cache.data.tau, names) if weighted else solve_ls(Y, cache.data.tau, names)
+    res = solve_ls(Y, cache.data.tau, names, weights=weights)
+    res.residual = cache.data.tau - predict_tau(cache, effects, res.theta)
+    res.rms = np.sqrt(np.mean(res.residual**2, axis=0))
     return res, slices
 
 
 def predict(cache: ColumnCache, effects, fit: LSResult) -> np.ndarray:
-    Y, _, _ = cache.model(effects)
-    return Y @ fit.theta
+    return predict_tau(cache, effects, fit.theta)
 
 
-__all__ = ["ColumnCache", "forward_select", "fit_model", "predict", "blocked_folds", "cv_score",
+__all__ = ["ColumnCache", "forward_select", "fit_model", "predict", "predict_tau", "implausible", "blocked_folds", "cv_score",
            "effect_label", "identifiability", "n_effective", "bic", "Step", "SelectionResult"]

@@ -1,0 +1,401 @@
+"""The whole loop: identify, look at the residual, add the missing effects, report before/after.
+
+::
+
+    fit CSVs --(data.load)--> IdentData --(regressor + friction)--> baseline WLS
+        --> residual analysis --> forward selection over effects.EFFECTS (held-out error, BIC)
+        --> final WLS [+ physically consistent SDP] --> validation RMS, replay through the
+            Drake plant augmented with the chosen effect blocks --> report.md / report.json / plots
+
+``report.json`` keys (contract, issue 6)::
+
+    {"robot", "samples", "baseline": {"rms_fit": [..], "rms_validate": [..]},
+     "effects": [{"kind", "joint", "parameters", "rms_validate_after": [..]}, ...],
+     "final": {"rms_fit", "rms_validate"}, "unexplained_structure": bool,
+     "replay": {"before": {...}, "after": {...}}}
+
+plus diagnostics (selection steps, identifiability, residual tests, data summary, notes).
+Validation: the ``validate`` files; without them the last ``HOLDOUT_FRACTION`` of every fit file
+(a contiguous tail) is held out, and the report says so.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from robust_drake.errors import RobustDrakeError
+from robust_drake.identification import residual as R
+from robust_drake.identification.data import DEFAULT_CUTOFF_HZ, DataWarning, IdentData, load
+from robust_drake.identification.least_squares import load_regressor
+from robust_drake.identification.selection import (
+    MIN_GAIN, ColumnCache, effect_label, fit_model, forward_select, predict_tau,
+)
+from robust_drake.identification.least_squares import solve_wls
+
+HOLDOUT_FRACTION = 0.25
+
+
+@dataclass
+class RepairOptions:
+    robot: str
+    torque: str = "tau_meas"
+    cutoff_hz: float | None = DEFAULT_CUTOFF_HZ
+    kinds: list[str] | None = None  # effect kinds to consider (default: the whole library)
+    min_gain: float = MIN_GAIN
+    max_effects: int = 4
+    consistent: bool = True
+    replay: bool = True
+    replay_horizon: float = 0.2
+    replay_windows: int = 20
+    plots: bool = True
+    weighted: bool = True
+    notes: list[str] = field(default_factory=list)
+
+
+def split_tail(data: IdentData, fraction: float = HOLDOUT_FRACTION) -> tuple[IdentData, IdentData]:
+    """Hold out the contiguous last ``fraction`` of every file."""
+    test = np.zeros(data.N, bool)
+    for s in np.unique(data.segment):
+        idx = np.nonzero(data.segment == s)[0]
+        test[idx[int(len(idx) * (1 - fraction)):]] = True
+    return data.subset(~test), data.subset(test)
+
+
+def _rms(r):
+    return [float(x) for x in np.sqrt(np.mean(np.asarray(r) ** 2, axis=0))]
+
+
+def _friction(fit, n):
+    th = dict(zip(fit.names, fit.theta))
+    return [th[f"fc{i + 1}"] for i in range(n)], [th[f"fv{i + 1}"] for i in range(n)]
+
+
+# physical plausibility of an identified effect, generic + hardware-aware where we know it
+def plausibility(kind: str, params: dict, robot: str) -> str:
+    dfki = "dfki" in str(robot)
+    p = {k: v for k, v in params.items() if isinstance(v, (int, float))}
+    if kind == "load_dependent_friction":
+        mu = p.get("load_coefficient", np.nan)
+        txt = (f"gear friction growing with transmitted torque, mu = {mu:.3g}; a planetary stage "
+               "loses a few to ~20 % of the load torque")
+        if dfki:
+            txt += " (AK80-6: 6:1 planetary gear between rotor and joint)"
+        return txt + ("" if 0 < mu < 0.5 else "; NOTE: outside the usual 0-0.5 range")
+    if kind == "rotor_inertia":
+        J = p.get("reflected_inertia", np.nan)
+        txt = f"reflected rotor inertia {J:.3g} kg m^2"
+        if dfki:
+            txt += f" (AK80-6: gr^2 Ir = 36 x 6.07e-5 = {36 * 6.07e-5:.3g} kg m^2)"
+        return txt
+    if kind in ("stribeck", "smooth_coulomb", "asymmetric_coulomb"):
+        return (f"low-velocity friction shape ({kind}); QDD motors with a single gear stage show "
+                "a smooth Coulomb transition and some breakaway; backlash "
+                + ("(about 0.15 deg on the AK80-6) " if dfki else "")
+                + "adds a torque dip at every reversal")
+    if kind == "torque_offset":
+        return "constant torque bias: current-sensor offset of the driver or an unmodelled static load"
+    if kind == "torque_scale":
+        g = p.get("gain_error", np.nan)
+        return (f"motor-constant error {g:+.1%}: the current-based torque estimate is off by that factor"
+                + ("" if abs(g) < 0.3 else "; NOTE: larger than a motor constant usually errs"))
+    if kind == "time_delay":
+        d = p.get("delay", np.nan)
+        return f"delay {d * 1e3:.3g} ms between recorded torque and motion (CAN bus / driver loop)" + (
+            "" if 0 <= d < 0.05 else "; NOTE: unusual size or sign")
+    if kind == "spring":
+        return "joint-angle proportional torque: cables or a balancing spring"
+    if kind == "position_dependent":
+        return "position-periodic torque: cogging / torque ripple of the motor"
+    if kind == "payload":
+        return "extra mass at the tool"
+    return kind
+
+
+def run_repair(fit_paths, options: RepairOptions, validate_paths=None, out_dir=None, progress=None) -> dict:
+    """The whole loop; writes ``report.json``/``report.md``/plots into ``out_dir`` when given."""
+    log = progress or (lambda msg: None)
+    opts = options
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", DataWarning)
+        regressor = load_regressor(opts.robot)
+        n = getattr(regressor, "n", None)
+        data = load(fit_paths, robot=opts.robot, n_joints=n, torque=opts.torque, cutoff_hz=opts.cutoff_hz)
+        notes = list(opts.notes)
+        if validate_paths:
+            val = load(validate_paths, robot=opts.robot, n_joints=data.n, torque=opts.torque,
+                       cutoff_hz=opts.cutoff_hz)
+            fit = data
+        else:
+            fit, val = split_tail(data)
+            notes.append(f"no --validate given: the last {HOLDOUT_FRACTION:.0%} of every fit file is "
+                         "held out (contiguous tail) as validation data")
+        log(f"data: fit {fit.N} samples ({len(fit.sources)} files), validate {val.N} samples")
+        cf, cv = ColumnCache(fit, regressor), ColumnCache(val, regressor)
+
+        # ---- baseline: rigid body + Coulomb + viscous
+        if opts.weighted:  # two-step WLS on the baseline fixes the per-joint weights for every model
+            Y0, names0, _ = cf.model([])
+            weights = 1.0 / np.maximum(solve_wls(Y0, fit.tau, names0, warn=False).rms, 1e-12)
+        else:
+            weights = np.ones(fit.n)
+        base_fit, _ = fit_model(cf, [], weights)
+        base_val_r = val.tau - predict_tau(cv, [], base_fit.theta)
+        base_ana = R.analyse(fit, base_fit.residual)
+        log(f"baseline rms fit {np.round(base_fit.rms, 4)} validate {np.round(_rms(base_val_r), 4)}")
+
+        # ---- selection
+        from robust_drake.identification.effects import all_candidates
+
+        cands = all_candidates(fit.n, kinds=opts.kinds, robot=opts.robot)
+        sel = forward_select(cf, cands, min_gain=opts.min_gain, max_effects=opts.max_effects, progress=log,
+                             weights=weights)
+        chosen = sel.chosen
+
+        # ---- final model, per-effect cumulative validation
+        final_fit, slices = fit_model(cf, chosen, weights)
+        effects_out = []
+        for k, e in enumerate(chosen):
+            fk, _ = fit_model(cf, chosen[:k + 1], weights)
+            rv = val.tau - predict_tau(cv, chosen[:k + 1], fk.theta)
+            coef = final_fit.theta[slices[k]]
+            se = final_fit.se[slices[k]]
+            params = e.parameters(coef)
+            step = next(s for s in sel.steps if s.label == effect_label(e))
+            effects_out.append({
+                "kind": e.kind, "joint": e.joint, "label": effect_label(e),
+                "parameters": _jsonable(params),
+                "coefficients": [float(c) for c in coef], "standard_errors": [float(s) for s in se],
+                "rms_validate_after": _rms(rv),
+                "heldout_gain": step.gain,
+                "confidence": "high" if step.gain >= 0.25 and not R.analyse(fit, fk.residual)["unexplained_structure"]
+                else "moderate",
+                "plausibility": plausibility(e.kind, params, opts.robot),
+            })
+        final_val_r = val.tau - predict_tau(cv, chosen, final_fit.theta)
+        final_ana = R.analyse(fit, final_fit.residual)
+        val_ana = R.analyse(val, final_val_r)
+        unexplained = bool(final_ana["unexplained_structure"])
+
+        # ---- physically consistent estimate
+        consistent = None
+        if opts.consistent:
+            try:
+                from robust_drake.identification.consistency import consistent_identification
+
+                def cons_for(effects, fitres):
+                    Y, _, _ = cf.model(effects)
+                    w = weights
+                    A = (Y * w[None, :, None]).reshape(-1, Y.shape[2])
+                    b = (fit.tau * w[None, :]).reshape(-1)
+                    p_base = len(regressor.base_names)
+                    # extras = friction + effect columns, which follow the base block
+                    res = consistent_identification(regressor, opts.robot, A, b, Y.shape[2] - p_base)
+                    return res
+
+                cons_base = cons_for([], base_fit)
+                cons_final = cons_for(chosen, final_fit)
+                r_cf = fit.tau - predict_tau(cf, chosen, cons_final.theta)
+                r_cv = val.tau - predict_tau(cv, chosen, cons_final.theta)
+                consistent = {"rms_fit": _rms(r_cf), "rms_validate": _rms(r_cv), **cons_final.as_dict()}
+                log(f"consistent ({cons_final.solver}): rms validate {np.round(_rms(r_cv), 4)}")
+            except RobustDrakeError as exc:
+                notes.append(f"physically consistent fit not available: {exc}")
+                cons_base = cons_final = None
+        else:
+            cons_base = cons_final = None
+
+        # ---- replay through the Drake plant
+        replay_out = {"before": None, "after": None}
+        if opts.replay:
+            from robust_drake.identification.replay import replay
+
+            def rp(fitres, effects, cons):
+                fc, fv = _friction(fitres, fit.n)
+                eff = []
+                theta = cons.theta if cons is not None else fitres.theta
+                _, _, sl = cf.model(effects)
+                for e, s in zip(effects, sl):
+                    eff.append((e, e.parameters(theta[s])))
+                if cons is not None:
+                    fc, fv = _friction_from(theta, fitres.names, fit.n)
+                inert = (cons.body_names, cons.pi, cons.extras) if cons is not None else None
+                return replay(opts.robot, val, fc, fv, eff, inertias=inert, horizon=opts.replay_horizon,
+                              max_windows=opts.replay_windows)
+
+            try:
+                replay_out = {"before": rp(base_fit, [], cons_base), "after": rp(final_fit, chosen, cons_final)}
+                log(f"replay rms q before {np.round(replay_out['before']['rms_q'], 4)} "
+                    f"after {np.round(replay_out['after']['rms_q'], 4)}")
+            except RobustDrakeError as exc:
+                notes.append(f"replay failed: {exc}")
+
+    warn_msgs = sorted({str(w.message) for w in caught})
+    ident = base_fit.as_dict()
+    report = {
+        "robot": str(opts.robot),
+        "samples": int(fit.N),
+        "samples_validate": int(val.N),
+        "torque": opts.torque,
+        "baseline": {"rms_fit": _rms(base_fit.residual), "rms_validate": _rms(base_val_r),
+                     "parameters": ident["parameters"], "standard_errors": ident["standard_errors"]},
+        "effects": effects_out,
+        "final": {"rms_fit": _rms(final_fit.residual), "rms_validate": _rms(final_val_r),
+                  "parameters": final_fit.as_dict()["parameters"],
+                  "standard_errors": final_fit.as_dict()["standard_errors"]},
+        "unexplained_structure": unexplained,
+        "unexplained_where": final_ana["where"],
+        "replay": replay_out,
+        "consistent": consistent,
+        "identifiability": {"condition_number": base_fit.cond, "rank": base_fit.rank,
+                            "unidentifiable": base_fit.unidentifiable},
+        "selection": {"steps": [s.as_dict() for s in sel.steps], "min_gain": opts.min_gain,
+                      "candidates": len(cands), "last_ranking": sel.ranking[:12],
+                      "rule": "blocked 4-fold held-out error, gain >= min_gain and BIC (N_eff) decreasing"},
+        "residual": {"baseline": base_ana, "final": final_ana, "final_validate": val_ana},
+        "data": {"fit": fit.summary(), "validate": val.summary(),
+                 "validation_source": "files" if validate_paths else "tail of fit files"},
+        "warnings": warn_msgs,
+        "notes": notes,
+    }
+    if out_dir:
+        os.makedirs(out_dir, exist_ok=True)
+        if opts.plots:
+            report["plots"] = _plots(out_dir, fit, val, base_fit, final_fit, base_val_r, final_val_r, cf, cv, chosen)
+        with open(os.path.join(out_dir, "report.json"), "w") as fh:
+            json.dump(report, fh, indent=2, default=_json_default)
+        with open(os.path.join(out_dir, "report.md"), "w") as fh:
+            fh.write(render_markdown(report))
+    return report
+
+
+def _friction_from(theta, names, n):
+    th = dict(zip(names, theta))
+    return [th[f"fc{i + 1}"] for i in range(n)], [th[f"fv{i + 1}"] for i in range(n)]
+
+
+def _jsonable(d):
+    out = {}
+    for k, v in d.items():
+        if isinstance(v, np.ndarray):
+            v = v.tolist()
+        elif isinstance(v, np.generic):
+            v = v.item()
+        out[k] = v
+    return out
+
+
+def _json_default(o):
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, np.generic):
+        return o.item()
+    return str(o)
+
+
+def _plots(out_dir, fit, val, base_fit, final_fit, base_val_r, final_val_r, cf, cv, chosen) -> list[str]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    paths = [
+        R.plot_residuals(fit, base_fit.residual, os.path.join(out_dir, "residual_fit.png"),
+                         "fit data: residual of the baseline (red) and of the repaired model (blue)",
+                         other=final_fit.residual),
+        R.plot_residuals(val, base_val_r, os.path.join(out_dir, "residual_validate.png"),
+                         "validation data: baseline (red) vs repaired (blue)", other=final_val_r),
+    ]
+    fig, axes = plt.subplots(val.n, 1, figsize=(11, 2.6 * val.n), squeeze=False)
+    pb = val.tau - base_val_r
+    pf = val.tau - final_val_r
+    for j in range(val.n):
+        ax = axes[j, 0]
+        ax.plot(val.t, val.tau[:, j], "k", lw=1, label="measured")
+        ax.plot(val.t, pb[:, j], "r", lw=0.8, label="baseline")
+        ax.plot(val.t, pf[:, j], "b", lw=0.8, label="repaired")
+        ax.set_ylabel(f"tau{j + 1} [N m]")
+        ax.legend(fontsize=7, loc="upper right")
+    axes[-1, 0].set_xlabel("t [s] (validation files back to back)")
+    fig.tight_layout()
+    p = os.path.join(out_dir, "torque_validate.png")
+    fig.savefig(p, dpi=80)
+    plt.close(fig)
+    paths.append(p)
+    return [os.path.basename(x) for x in paths]
+
+
+def render_markdown(rep: dict) -> str:
+    n = len(rep["baseline"]["rms_fit"])
+    fmt = lambda xs: ", ".join(f"{x:.4f}" for x in xs)  # noqa: E731
+    L = [f"# Repair report: {rep['robot']}", ""]
+    L += [f"Fit samples: {rep['samples']} ({len(rep['data']['fit']['sources'])} files); validation samples: "
+          f"{rep['samples_validate']} ({rep['data']['validation_source']}). Torque column: `{rep['torque']}`.",
+          f"Filter: {rep['data']['fit']['filter']['method']}, cut-off {rep['data']['fit']['filter']['cutoff_hz']} Hz, "
+          f"{rep['data']['fit']['filter']['trim_samples']} samples trimmed at each file end.", ""]
+    L += ["## Error before and after (RMS torque residual per joint, N m)", "",
+          "| model | " + " | ".join(f"fit j{j}" for j in range(n)) + " | " + " | ".join(f"validate j{j}" for j in range(n)) + " |",
+          "|---|" + "---|" * (2 * n)]
+    L.append("| baseline (rigid body + Coulomb + viscous) | " + " | ".join(f"{x:.4f}" for x in rep["baseline"]["rms_fit"])
+             + " | " + " | ".join(f"{x:.4f}" for x in rep["baseline"]["rms_validate"]) + " |")
+    for e in rep["effects"]:
+        L.append(f"| + {e['label']} | " + " | ".join("" for _ in range(n)) + " | "
+                 + " | ".join(f"{x:.4f}" for x in e["rms_validate_after"]) + " |")
+    L.append("| **repaired** | " + " | ".join(f"{x:.4f}" for x in rep["final"]["rms_fit"]) + " | "
+             + " | ".join(f"**{x:.4f}**" for x in rep["final"]["rms_validate"]) + " |")
+    if rep.get("consistent"):
+        c = rep["consistent"]
+        L.append(f"| repaired, physically consistent ({c['solver']}) | " + " | ".join(f"{x:.4f}" for x in c["rms_fit"])
+                 + " | " + " | ".join(f"{x:.4f}" for x in c["rms_validate"]) + " |")
+    L += ["", "## Effects added", ""]
+    if not rep["effects"]:
+        L.append("None: no candidate passed the stopping rule.")
+    for e in rep["effects"]:
+        ps = ", ".join(f"{k} = {v:.4g}" if isinstance(v, float) else f"{k} = {v}" for k, v in e["parameters"].items())
+        L.append(f"- **{e['kind']}** (joint {e['joint']}): {ps}; held-out error -{e['heldout_gain']:.1%}; "
+                 f"confidence {e['confidence']}. Why plausible: {e['plausibility']}.")
+    L += ["", "## Selection steps", "", "| step | best candidate | held-out score before -> after | BIC before -> after | decision |",
+          "|---|---|---|---|---|"]
+    for s in rep["selection"]["steps"]:
+        L.append(f"| {s['step']} | {s['label']} | {s['score_before']:.4f} -> {s['score_after']:.4f} | "
+                 f"{s['bic_before']:.1f} -> {s['bic_after']:.1f} | {'added' if s['accepted'] else 'stop'}: {s['reason']} |")
+    L += ["", f"Rule: {rep['selection']['rule']}; min gain {rep['selection']['min_gain']:.0%}; "
+          f"{rep['selection']['candidates']} candidates. Scores are relative to the baseline's held-out error.", ""]
+    L += ["## Residual structure", ""]
+    if rep["unexplained_structure"]:
+        where = "; ".join(f"joint {w['joint']} vs {w['variable']} (eta^2 = {w['eta2']:.3f})" for w in rep["unexplained_where"])
+        col = rep["residual"]["final"]["coloured"]
+        L.append("**unexplained_structure: true.** The repaired model's residual still depends on the state "
+                 f"where no library effect explains it: {where or 'none by state'}"
+                 + (f"; coloured residual on joints {[c['joint'] for c in col]}" if col else "") + ".")
+    else:
+        L.append("unexplained_structure: false (no state variable explains >= "
+                 f"{R.ETA_MIN:.0%} of the residual variance at p < {R.ALPHA}).")
+    L.append("")
+    L.append("Strongest state dependences of the final residual (eta^2 = share of residual variance explained by a "
+             "binned function of the variable):")
+    for d in rep["residual"]["final"]["state_dependence_top"][:6]:
+        L.append(f"- joint {d['joint']} vs {d['variable']}: eta^2 = {d['eta2']:.3f}")
+    rp = rep.get("replay") or {}
+    if rp.get("before") and rp.get("after"):
+        L += ["", "## Replay of the measured torques through the Drake plant", "",
+              f"{rp['after']['windows']} windows of {rp['after']['horizon_s']} s on the validation data, each reset "
+              f"from the measured state; inertias: {rp['after']['inertias']}.", "",
+              "| model | RMS q error per joint [rad] | RMS q error at window end [rad] |", "|---|---|---|",
+              f"| before (baseline) | {fmt(rp['before']['rms_q'])} | {fmt(rp['before']['rms_q_end'])} |",
+              f"| after (repaired + effect blocks) | {fmt(rp['after']['rms_q'])} | {fmt(rp['after']['rms_q_end'])} |"]
+    ident = rep["identifiability"]
+    L += ["", "## Identifiability", "",
+          f"Condition number of the column-normalised baseline regressor: {ident['condition_number']:.3g}; "
+          f"unidentifiable: {', '.join(ident['unidentifiable']) or 'none'}."]
+    if rep.get("warnings"):
+        L += ["", "## Warnings", ""] + [f"- {w}" for w in rep["warnings"]]
+    if rep.get("notes"):
+        L += ["", "## Notes", ""] + [f"- {w}" for w in rep["notes"]]
+    if rep.get("plots"):
+        L += ["", "## Plots", ""] + [f"![{p}]({p})" for p in rep["plots"]]
+    return "\n".join(L) + "\n"
