@@ -252,7 +252,7 @@ def make_circle(arm, center=(0.4, 0.0), radius=0.1, omega=6.0, duration=7.0, elb
                      "circle", {"center": list(center), "radius": radius, "omega": omega})
 
 
-def make_refmodel(arm, amplitude_deg=90.0, omega=10.0, duration=2.0):
+def make_refmodel(arm, amplitude_deg=90.0, omega=3.5, duration=3.0):
     """JS eq. 47: critically damped second-order reference model driven by a 0 -> 90 deg step."""
     amp = np.deg2rad(_vec(amplitude_deg, arm.n))
     return Reference(lambda t: second_order_step(t, amp, omega, 1.0), arm.n, duration, "refmodel",
