@@ -68,7 +68,9 @@ class ClosedLoopConfig:
     registry name with params ``(name, {params})`` or a callable ``f(ctx) -> LeafSystem``
     with input ``state`` (and optionally ``tau``) and output ``generalized_force``.
     ``plant_setup`` callables ``f(plant, plant_context)`` change the plant's parameters
-    before each run.
+    before each run. ``feedforward`` callables ``f(q_meas, v_hat) -> torques`` are added to the
+    controller's command within each tick (model-based compensation; the controller must be a
+    :class:`~robust_drake.systems.controllers.base.DiscreteController`).
     """
 
     robot: str = "d2r2"
@@ -92,6 +94,7 @@ class ClosedLoopConfig:
     initial_q: list | None = None
     effects: list = field(default_factory=list)
     plant_setup: list = field(default_factory=list)
+    feedforward: list = field(default_factory=list)
 
     def resolved(self) -> "ClosedLoopConfig":
         """A copy with the robot-dependent defaults filled in and inputs checked."""
@@ -112,7 +115,7 @@ class ClosedLoopConfig:
         return c
 
     def to_dict(self) -> dict:
-        d = {k: getattr(self, k) for k in self.__dataclass_fields__ if k not in ("effects", "plant_setup")}
+        d = {k: getattr(self, k) for k in self.__dataclass_fields__ if k not in ("effects", "plant_setup", "feedforward")}
         d["effects"] = [e if isinstance(e, (list, tuple)) else getattr(e, "__name__", repr(e)) for e in self.effects]
         return {k: (None if v is _DEFAULT else v) for k, v in d.items()}
 
@@ -215,6 +218,10 @@ class ClosedLoop:
         builder.Connect(q_meas, ctrl.GetInputPort("q"))
         builder.Connect(obs.GetOutputPort("v"), ctrl.GetInputPort("v"))
         builder.Connect(obs.GetOutputPort("v_error"), ctrl.GetInputPort("v_error"))
+        for f in c.feedforward:
+            if not hasattr(ctrl, "add_feedforward"):
+                raise RobustDrakeError(f"controller {c.controller!r} does not accept feedforward terms")
+            ctrl.add_feedforward(f)
         u = ctrl.GetOutputPort("u")
         self.compensation = None
         if c.friction_compensation:

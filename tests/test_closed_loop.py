@@ -139,3 +139,13 @@ def test_cli_simulate_json(capsys):
     for k in ("error1", "maxerr1", "error2", "maxerr2", "error_task", "maxerr_task", "sim_seconds", "wall_seconds"):
         assert k in out and math.isfinite(out[k])
     assert out["sim_seconds"] == pytest.approx(0.2)
+
+
+def test_feedforward_is_added_within_the_tick():
+    """A feedforward term f(q, v) reaches the held command of the same tick (no delay)."""
+    base = dict(controller="pd", trajectory="cpt", duration=0.01)
+    r0 = simulate(ClosedLoopConfig(**base))
+    r1 = simulate(ClosedLoopConfig(**base, feedforward=[lambda q, v: [1.5, -0.5]]))
+    # logged u at t_1 is the torque held on (0, T]: computed at t = 0 from identical states
+    assert np.allclose(r1.u[1] - r0.u[1], [1.5, -0.5], atol=1e-12)
+    assert not np.allclose(r1.q[-1], r0.q[-1])

@@ -38,6 +38,13 @@ class DiscreteController(LeafSystem):
         self._u_index = self.DeclareDiscreteState(self.n)
         self.DeclarePeriodicDiscreteUpdateEvent(self.period, 0.0, self._update)
         self.DeclareStateOutputPort("u", self._u_index)
+        self._feedforward = []
+
+    def add_feedforward(self, f) -> None:
+        """Add ``f(q, v) -> n torques`` [N m] to every sample's command, computed in the same tick
+        from the measured position and the velocity estimate (model-based compensation, e.g. of
+        friction or of effects found by identification). No extra delay, held like the rest of u."""
+        self._feedforward.append(f)
 
     def compute(self, t, q_d, qd_d, qdd_d, q, v, v_error):  # pragma: no cover - abstract
         """Return the n joint torques for this sample (override)."""
@@ -53,6 +60,9 @@ class DiscreteController(LeafSystem):
             self._v_port.Eval(context),
             self._v_error_port.Eval(context),
         )
+        if self._feedforward:
+            q, v = self._q_port.Eval(context), self._v_port.Eval(context)
+            u = np.asarray(u, dtype=float) + sum(np.asarray(f(q, v), dtype=float) for f in self._feedforward)
         discrete_state.get_mutable_vector(self._u_index).get_mutable_value()[:] = u
 
 
