@@ -327,26 +327,31 @@ def percentile_table(df, metric: str = "maxerr_task", percentiles=(50, 90, 95, 9
     return pd.DataFrame(rows)
 
 
-def boxplot(df, path, metric: str = "maxerr_task", title: str | None = None) -> None:
-    """Box plot of ``metric`` (ok runs) per controller, worst case marked, saved to ``path``."""
+def boxplot(df, path, metric: str = "maxerr_task", title: str | None = None,
+            also: Sequence[str] = ("error_task",)) -> None:
+    """Box plots per controller (ok runs) of ``metric`` and of the ``also`` metrics, one panel
+    each, worst case marked with a red triangle; saved to ``path``."""
     import matplotlib
 
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
 
-    groups = [(c, g[g["status"] == "ok"][metric].astype(float).dropna().to_numpy())
-              for c, g in df.groupby("controller", sort=False)]
-    fig, ax = plt.subplots(figsize=(1.6 + 1.2 * max(1, len(groups)), 4.0))
-    data = [v if len(v) else np.array([np.nan]) for _, v in groups]
-    ax.boxplot(data, whis=(5, 95), showfliers=True)
-    ax.set_xticks(range(1, len(groups) + 1), [c for c, _ in groups])
-    for i, (_, v) in enumerate(groups, start=1):
-        if len(v):
-            ax.plot([i], [v.max()], "rv", ms=6)
-    unit = "m" if metric.endswith("task") else "rad"
-    ax.set_ylabel(f"{metric} [{unit}]")
-    ax.set_title(title or f"Monte Carlo: {metric} per controller (whiskers 5-95 %, v = worst)")
-    ax.grid(True, axis="y", alpha=0.3)
+    metrics = [metric] + [m for m in also if m != metric and m in df.columns]
+    ctrls = list(dict.fromkeys(df["controller"]))
+    fig, axes = plt.subplots(1, len(metrics), squeeze=False,
+                             figsize=(0.5 + (1.4 + 1.0 * max(1, len(ctrls))) * len(metrics), 4.0))
+    for ax, m in zip(axes[0], metrics):
+        groups = [df[(df["controller"] == c) & (df["status"] == "ok")][m].astype(float).dropna()
+                  .to_numpy() for c in ctrls]
+        ax.boxplot([v if len(v) else np.array([np.nan]) for v in groups], whis=(5, 95))
+        ax.set_xticks(range(1, len(ctrls) + 1), ctrls)
+        for i, v in enumerate(groups, start=1):
+            if len(v):
+                ax.plot([i], [v.max()], "rv", ms=6)
+        unit = "m" if m.endswith("task") else "rad"
+        ax.set_ylabel(f"{m} [{unit}]")
+        ax.grid(True, axis="y", alpha=0.3)
+    fig.suptitle(title or "Monte Carlo per controller (whiskers 5-95 %, red = worst draw)")
     fig.tight_layout()
     pathlib.Path(path).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=120)
