@@ -329,8 +329,13 @@ class TorqueOffset(Effect):
 
 class TorqueScale(Effect):
     """Motor-constant error: the joint receives ``(1 + gain_error) tau`` for a commanded tau.
-    Columns ``-tau_j`` with coefficient ``gain_error`` (dimensionless). A gain error common to all
-    joints only rescales theta and is not identifiable, so candidates are per joint."""
+    Columns ``-tau_j`` with coefficient ``gain_error`` (dimensionless).
+
+    Identifiability: scaling every joint's torque by the same factor only rescales theta, so
+    only the gains *relative to each other* are identifiable from free rigid-body fits, and
+    candidates are per joint. On a 2-joint arm, gain (1 + e) on joint 1 is indistinguishable from
+    gain 1 / (1 + e) on joint 0 (see :func:`equivalent_gain_error`); which joint is "wrong"
+    needs an absolute reference (a known mass or a torque sensor)."""
 
     kind = "torque_scale"
     coef_names = ("gain_error",)
@@ -339,6 +344,12 @@ class TorqueScale(Effect):
 
     def _features(self, j, q, qd, qdd, tau, taud):
         return -tau[:, j:j + 1]
+
+
+def equivalent_gain_error(gain_error: float) -> float:
+    """On a 2-joint arm: the gain error on the *other* joint that explains the same data,
+    (1 + e') = 1 / (1 + e) (a common factor is absorbed by theta)."""
+    return 1.0 / (1.0 + gain_error) - 1.0
 
 
 class RotorInertia(Effect):
@@ -499,11 +510,7 @@ class Payload(Effect):
         return [cls(joint=None, robot=robot)]
 
     def _tool(self, plant):
-        body = _last_body(plant)
-        p = self.shape["tool_position"]
-        if p is None:
-            p = _default_tool_position(plant, body)
-        return body, np.asarray(p, dtype=float)
+        return _tool_point(plant, self.shape["tool_position"])
 
     def evaluate_columns(self, q, qd=None, qdd=None, tau=None, taud=None, robot=None):
         robot = robot or self.shape["robot"]
@@ -514,7 +521,7 @@ class Payload(Effect):
         plant, context, body, p = _payload_plant(robot, self.shape["tool_position"])
         q, qd, qdd = (np.atleast_2d(a) for a in (q, qd, qdd))
         N, n = q.shape
-        from pydrake.multibody.plant import MultibodyForces
+        from pydrake.multibody.tree import MultibodyForces
         f = MultibodyForces(plant)
         cols = np.zeros((N, n, 1))
         for i in range(N):
@@ -532,6 +539,23 @@ class Payload(Effect):
     def block(self, n, parameters, **kw):
         return None
 
+    def mass_from_base_shift(self, data, regressor, theta_base, theta_base_nominal=None) -> float:
+        """Payload mass implied by a fitted rigid-body model that absorbed it.
+
+        A tool mass lies in the span of the rigid-body regressor (class docstring), so a free
+        fit absorbs it into the base parameters. Its size is recovered by projecting the torque
+        difference between the fitted and the nominal (URDF) base parameters onto the payload
+        column: ``m = <Phi, Y_b dtheta> / <Phi, Phi>`` over the samples of ``data``
+        (``Y_b`` = ``regressor.evaluate``, ``dtheta = theta_base - theta_base_nominal``).
+        """
+        Yb = np.asarray(regressor.evaluate(data.q, data.qd, data.qdd), float)
+        if theta_base_nominal is None:
+            theta_base_nominal = regressor.base_parameters()
+        dtau = Yb @ (np.asarray(theta_base, float) - np.asarray(theta_base_nominal, float))
+        robot = self.shape["robot"] or getattr(data, "robot", None)
+        phi = self.evaluate_columns(data.q, data.qd, data.qdd, robot=robot)[:, :, 0]
+        return float(np.sum(phi * dtau) / np.sum(phi * phi))
+
     def apply_to_plant(self, plant, parameters):
         from pydrake.math import RigidTransform
         from pydrake.multibody.tree import SpatialInertia, UnitInertia
@@ -544,19 +568,25 @@ class Payload(Effect):
 
 
 def _last_body(plant):
-    """The child body of the joint that owns the last velocity coordinate (distal link)."""
-    nv = plant.num_velocities()
-    for ji in plant.GetJointIndices():
-        jt = plant.get_joint(ji)
-        if jt.num_velocities() == 1 and jt.velocity_start() == nv - 1:
-            return jt.child_body()
-    raise RobustDrakeError("payload: could not find the last joint of the arm")
+    """The child body of the arm's last 1-dof joint (joint index order; works pre-Finalize)."""
+    joints = [plant.get_joint(ji) for ji in plant.GetJointIndices()
+              if plant.get_joint(ji).num_velocities() == 1]
+    if not joints:
+        raise RobustDrakeError("payload: the model has no 1-dof joint")
+    return joints[-1].child_body()
 
 
-def _default_tool_position(plant, body):
-    """Twice the COM offset of the last link (the far end of a uniform rod), else the COM."""
-    c = body.default_com()
-    return 2.0 * np.asarray(c) if np.linalg.norm(c) > 0 else np.zeros(3)
+def _tool_point(plant, tool_position=None):
+    """(body, p_BT): the tool point. ``tool_position`` (in the last link's frame) if given, else
+    the frame named ``tool`` (URDF ``<frame name="tool" link=...>``) if the model has one, else
+    twice the last link's COM offset (the far end of a uniform rod)."""
+    if tool_position is not None:
+        return _last_body(plant), np.asarray(tool_position, dtype=float)
+    if plant.HasFrameNamed("tool"):
+        frame = plant.GetFrameByName("tool")
+        return frame.body(), np.asarray(frame.GetFixedPoseInBodyFrame().translation(), dtype=float)
+    body = _last_body(plant)
+    return body, 2.0 * np.asarray(body.default_com(), dtype=float)
 
 
 _PAYLOAD_CACHE: dict = {}
@@ -570,15 +600,15 @@ def _payload_plant(robot, tool_position):
     from pydrake.multibody.tree import SpatialInertia, UnitInertia
     plant = load_plant(robot)
     context = plant.CreateDefaultContext()
-    body = _last_body(plant)
-    p = tool_position if tool_position is not None else _default_tool_position(plant, body)
-    p = np.asarray(p, dtype=float)
+    body, p = _tool_point(plant, tool_position)
     from pydrake.multibody.tree import BodyIndex
     zero = SpatialInertia(0.0, np.zeros(3), UnitInertia(0.0, 0.0, 0.0), skip_validity_check=True)
     for bi in range(1, plant.num_bodies()):
         plant.get_body(BodyIndex(bi)).SetSpatialInertiaInBodyFrame(context, zero)
     body.SetSpatialInertiaInBodyFrame(
         context, SpatialInertia(1.0, p, UnitInertia.PointMass(p), skip_validity_check=True))
+    for ai in plant.GetJointActuatorIndices():  # no reflected rotor inertia either
+        plant.get_joint_actuator(ai).SetRotorInertia(context, 0.0)
     out = (plant, context, body, p)
     _PAYLOAD_CACHE[key] = out
     return out
