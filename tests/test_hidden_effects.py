@@ -68,7 +68,9 @@ def test_repair_names_and_recovers_hidden_effect(kind, tmp_path_factory):
         assert first["joint"] == truth["joint"]
     assert abs(est - true) <= truth["rtol"] * abs(true), (kind, est, true)
     n = len(rep["baseline"]["rms_validate"])
-    joints = range(n) if truth["joint"] is None else [truth["joint"]]
+    # the affected joint; all joints for global effects and for torque_scale (a free fit moves a
+    # single joint's gain error into the other joint's residual, see above)
+    joints = range(n) if truth["joint"] is None or kind == "torque_scale" else [truth["joint"]]
     before = _rms(rep["baseline"]["rms_validate"], joints)
     after = _rms(rep["final"]["rms_validate"], joints)
     assert after <= 0.5 * before, (kind, before, after)

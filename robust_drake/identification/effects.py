@@ -53,6 +53,20 @@ def smooth_sign(v, v_eps=V_EPS):
     return np.tanh(np.asarray(v, dtype=float) / v_eps)
 
 
+def time_derivative(t, x, segment=None):
+    """Central differences of x (N, n) on the time stamps, separately within each file segment
+    (never across the jump between concatenated files)."""
+    t = np.asarray(t, dtype=float)
+    x = np.asarray(x, dtype=float)
+    out = np.zeros_like(x)
+    seg = np.zeros(len(t), dtype=int) if segment is None else np.asarray(segment)
+    for s in np.unique(seg):
+        m = seg == s
+        if m.sum() >= 2:
+            out[m] = np.gradient(x[m], t[m], axis=0)
+    return out
+
+
 def _fmt(x):
     return f"{x:g}" if isinstance(x, (int, float)) else str(x)
 
@@ -139,7 +153,7 @@ class Effect:
         if getattr(self, "uses_taud", False):
             taud = getattr(data, "taud", None)
             if taud is None:
-                taud = np.gradient(np.asarray(data.tau, dtype=float), np.asarray(data.t, dtype=float), axis=0)
+                taud = time_derivative(data.t, data.tau, getattr(data, "segment", None))
         cols = self.evaluate_columns(q, getattr(data, "qd", None), getattr(data, "qdd", None),
                                      getattr(data, "tau", None), taud)
         return cols, self.column_names(q.shape[1])
