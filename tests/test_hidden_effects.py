@@ -19,7 +19,6 @@ Data are short (12 s at 250 Hz per run) so the whole file stays within its time 
 """
 
 import math
-import os
 
 import numpy as np
 import pytest
@@ -29,7 +28,9 @@ from robust_drake.identification.simulated import HIDDEN_CASES, hidden_effect_ca
 
 repair = pytest.importorskip("robust_drake.identification.repair")
 
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+# Cost note: ~45-60 s on one core with single-threaded BLAS (``make test`` exports
+# OPENBLAS_NUM_THREADS=1). Run directly, export it too: multi-threaded OpenBLAS on a busy 2-core
+# machine made each selection 10-30x slower (measured).
 
 
 def _run(kind, tmp_path_factory, seed=0):

@@ -38,10 +38,10 @@ integrated with an error-controlled integrator.
 from __future__ import annotations
 
 import math
-from typing import Any, ClassVar
+from typing import ClassVar
 
 import numpy as np
-from pydrake.systems.framework import BasicVector, LeafSystem
+from pydrake.systems.framework import LeafSystem
 
 from robust_drake.errors import RobustDrakeError
 
