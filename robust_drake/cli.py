@@ -28,6 +28,7 @@ COMMAND_MODULES = [
     "robust_drake.commands.montecarlo",
     "robust_drake.commands.compare",
     "robust_drake.commands.sweep_rate",
+    "robust_drake.commands.repair",
 ]
 
 

@@ -7,7 +7,10 @@ every significance level uses the effective sample count N_eff = N * 2 f_c dt):
   variable x in {q_i, qd_i, sign(qd_i), qdd_i, tau_i, t}, bin x into quantile bins and compute
   eta^2 = var(bin means of r_j) / var(r_j), the share of the residual variance that a
   (nonlinear, arbitrary) function of x explains. F = eta^2/(k-1) / ((1-eta^2)/(N_eff-k)).
-  Significant structure: eta^2 >= ``ETA_MIN`` and p < ``ALPHA``.
+  Significant structure: eta^2 >= ``ETA_MIN`` and p < ``ALPHA``, for x a state variable or t.
+  The measured torque tau_i is reported but does not raise the flag: noise e in the measured
+  torque makes r correlate with tau = tau_true + e by construction (eta^2 ~ var e / var tau),
+  so dependence on tau alone is not evidence of a missing effect.
 - **whiteness**: Ljung-Box Q on the residual decimated to the filter's Nyquist rate
   (step = 1 / (2 f_c dt)), ``LAGS`` lags. Reported; strong colour (lag-1 autocorrelation above
   ``RHO_MAX`` at that rate and p < ALPHA) also counts as structure.
@@ -147,7 +150,7 @@ def analyse(data: IdentData, residual: np.ndarray, eta_min: float = ETA_MIN, alp
     """All tests; ``unexplained_structure`` and ``where`` (joint, variable, eta2) if flagged."""
     dep = state_dependence(data, residual)
     white = whiteness(data, residual)
-    where = [d for d in dep if d["eta2"] >= eta_min and d["p"] < alpha]
+    where = [d for d in dep if d["eta2"] >= eta_min and d["p"] < alpha and not d["variable"].startswith("tau")]
     coloured = [w for w in white if w["p"] < alpha and w["rho1"] > RHO_MAX]
     f, P = spectrum(residual, data.dt)
     peaks = [float(f[1:][np.argmax(P[1:, j])]) for j in range(residual.shape[1])]

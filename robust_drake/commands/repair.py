@@ -1,0 +1,90 @@
+"""``robust-drake repair``: identify, analyse the residual, add missing effects, report before/after.
+
+::
+
+    robust-drake repair FIT.csv [FIT2.csv ...] --robot NAME_OR_URDF [--validate VAL.csv ...]
+                        [--torque tau_meas|tau_con] [--cutoff HZ] --out DIR [--json] [--plot]
+
+Writes ``DIR/report.md``, ``DIR/report.json`` and (with ``--plot``, or always unless
+``--no-plots``) residual plots. CSVs: canonical (``t, q1..qn, tau1..taun``) or DFKI records.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+
+from robust_drake.cli import add_output_flags, format_table, print_json
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "repair",
+        help="identify a model from measured data, find and add missing effects, report before/after",
+        description=__doc__.split("::")[0].strip(),
+    )
+    p.add_argument("fit", nargs="+", metavar="FIT.csv", help="fit data (canonical or DFKI CSV)")
+    p.add_argument("--robot", required=True, help="robot name in models/ or a URDF path")
+    p.add_argument("--validate", nargs="+", metavar="VAL.csv", default=None,
+                   help="validation data (default: hold out the last 25%% of every fit file)")
+    p.add_argument("--torque", choices=("tau_meas", "tau_con"), default="tau_meas",
+                   help="DFKI torque column (ignored for canonical CSVs)")
+    p.add_argument("--cutoff", type=float, default=None, metavar="HZ",
+                   help="zero-phase low-pass cut-off for q and tau (default 8 Hz)")
+    p.add_argument("--effects", default=None, metavar="K1,K2",
+                   help="restrict the candidate effect kinds (default: the whole library)")
+    p.add_argument("--min-gain", type=float, default=None,
+                   help="minimum relative held-out error reduction to add an effect (default 0.05)")
+    p.add_argument("--max-effects", type=int, default=4)
+    p.add_argument("--no-consistent", action="store_true",
+                   help="skip the physically consistent (pseudo-inertia LMI) estimate")
+    p.add_argument("--no-replay", action="store_true", help="skip the replay through the Drake plant")
+    p.add_argument("--no-plots", action="store_true", help="do not write PNG plots")
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    add_output_flags(p, plot=None)
+    p.add_argument("--plot", action="store_true", help="write residual plots (default on; kept for symmetry)")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from robust_drake.errors import RobustDrakeError
+    from robust_drake.identification.data import DEFAULT_CUTOFF_HZ
+    from robust_drake.identification.effects import EFFECTS
+    from robust_drake.identification.repair import RepairOptions, run_repair
+    from robust_drake.identification.selection import MIN_GAIN
+
+    kinds = None
+    if args.effects:
+        kinds = [k.strip() for k in args.effects.split(",") if k.strip()]
+        bad = [k for k in kinds if k not in EFFECTS]
+        if bad:
+            raise RobustDrakeError(f"unknown effect kind(s) {bad}; known: {', '.join(EFFECTS)}")
+    opts = RepairOptions(
+        robot=args.robot, torque=args.torque,
+        cutoff_hz=DEFAULT_CUTOFF_HZ if args.cutoff is None else args.cutoff,
+        kinds=kinds, min_gain=MIN_GAIN if args.min_gain is None else args.min_gain,
+        max_effects=args.max_effects, consistent=not args.no_consistent, replay=not args.no_replay,
+        plots=not args.no_plots,
+    )
+    log = None if args.json else (lambda msg: print(msg, file=sys.stderr))
+    rep = run_repair(args.fit, opts, validate_paths=args.validate, out_dir=args.out, progress=log)
+    if args.json:
+        print_json(rep)
+        return 0
+    n = len(rep["baseline"]["rms_fit"])
+    rows = [["baseline", *rep["baseline"]["rms_fit"], *rep["baseline"]["rms_validate"]]]
+    for e in rep["effects"]:
+        rows.append([f"+ {e['kind']}[{e['joint']}]", *([""] * n), *e["rms_validate_after"]])
+    rows.append(["repaired", *rep["final"]["rms_fit"], *rep["final"]["rms_validate"]])
+    header = ["model", *[f"fit j{j}" for j in range(n)], *[f"val j{j}" for j in range(n)]]
+    print(f"robot {rep['robot']}, {rep['samples']} fit samples, RMS torque residual [N m]:")
+    print(format_table(rows, header))
+    print(f"unexplained_structure: {str(rep['unexplained_structure']).lower()}"
+          + (f" ({', '.join(w['variable'] + ' on joint ' + str(w['joint']) for w in rep['unexplained_where'])})"
+             if rep["unexplained_structure"] else ""))
+    rp = rep.get("replay") or {}
+    if rp.get("before") and rp.get("after"):
+        print(f"replay RMS q error [rad]: before {[round(x, 4) for x in rp['before']['rms_q']]}, "
+              f"after {[round(x, 4) for x in rp['after']['rms_q']]}")
+    print(f"report: {os.path.join(args.out, 'report.md')}")
+    return 0
