@@ -214,7 +214,9 @@ class Effect:
         """Change the (not yet finalised) MultibodyPlant; no-op for force-type effects."""
 
     def apply_to_context(self, plant, context, parameters: dict) -> None:
-        """Change a plant context (parameters set after Finalize); no-op by default."""
+        """Post-Finalize alternative to :meth:`apply_to_plant` for plant-modifying effects: change
+        the parameters in a plant context instead (use one or the other, never both).
+        No-op for force-type effects."""
 
 
 class EffectForceBlock(LeafSystem):
@@ -406,6 +408,24 @@ class RotorInertia(Effect):
             G = act.default_gear_ratio()
             act.set_default_rotor_inertia(act.default_rotor_inertia() + float(Ir) / (G * G))
 
+    def apply_to_context(self, plant, context, parameters):
+        """Post-Finalize alternative to :meth:`apply_to_plant` (use one, not both): raise the
+        joint actuator's rotor inertia in ``context``. Needs an actuator on the joint."""
+        vals = parameters["reflected_inertia"]
+        js = self.joints(plant.num_velocities())
+        vals = list(vals) if isinstance(vals, (list, tuple, np.ndarray)) else [vals] * len(js)
+        for j, Ir in zip(js, vals):
+            act = None
+            for ai in plant.GetJointActuatorIndices():
+                a = plant.get_joint_actuator(ai)
+                if a.joint().num_velocities() == 1 and a.joint().velocity_start() == j:
+                    act = a
+            if act is None:
+                raise RobustDrakeError(f"rotor_inertia: joint {j} has no actuator; use apply_to_plant "
+                                       "(load_plant(robot, effects)) before Finalize instead")
+            G = act.gear_ratio(context)
+            act.SetRotorInertia(context, act.rotor_inertia(context) + float(Ir) / (G * G))
+
 
 class Spring(Effect):
     """Joint-space spring (cables, balancing spring): the plant gets ``-stiffness q_j`` (rest at
@@ -570,6 +590,16 @@ class Payload(Effect):
         phi = self.evaluate_columns(data.q, data.qd, data.qdd, robot=robot)[:, :, 0]
         return float(np.sum(phi * dtau) / np.sum(phi * phi))
 
+    def apply_to_context(self, plant, context, parameters):
+        """Post-Finalize alternative to :meth:`apply_to_plant` (use one, not both): add the point
+        mass to the tool body's spatial inertia in ``context``."""
+        from pydrake.multibody.tree import SpatialInertia, UnitInertia
+        m = float(parameters["mass"])
+        body, p = self._tool(plant)
+        M = body.CalcSpatialInertiaInBodyFrame(context)
+        M += SpatialInertia(m, p, UnitInertia.PointMass(p), skip_validity_check=True)
+        body.SetSpatialInertiaInBodyFrame(context, M)
+
     def apply_to_plant(self, plant, parameters):
         from pydrake.math import RigidTransform
         from pydrake.multibody.tree import SpatialInertia, UnitInertia
@@ -711,3 +741,19 @@ def add_effect_blocks(builder, plant, tau_port, effects, sample_period=None):
         builder.Connect(blk.GetOutputPort("generalized_force"), adder.get_input_port(i + 1))
     builder.Connect(adder.get_output_port(0), plant.get_applied_generalized_force_input_port())
     return blocks
+
+
+def closed_loop_hooks(effects, sample_period=None) -> dict:
+    """Hooks for :class:`robust_drake.diagram.ClosedLoopConfig`: ``{"effects": [...],
+    "plant_setup": [...]}`` from ``[(Effect, parameters), ...]``. Force-type effects become block
+    factories ``f(ctx)`` (the delay line samples at the loop's period unless ``sample_period``);
+    plant-modifying ones become ``f(plant, context)`` calls of :meth:`Effect.apply_to_context`.
+    Usage: ``ClosedLoopConfig(..., **closed_loop_hooks(chosen))``."""
+    blocks, setup = [], []
+    for eff, params in effects:
+        if eff.modifies_plant:
+            setup.append(lambda plant, ctx, e=eff, p=params: e.apply_to_context(plant, ctx, p))
+        else:
+            blocks.append(lambda bctx, e=eff, p=params: e.block(
+                bctx.n, p, sample_period=sample_period or bctx.period))
+    return {"effects": blocks, "plant_setup": setup}

@@ -211,8 +211,6 @@ def simulate_experiment(robot=DEFAULT_ROBOT, effects=(), duration=15.0, rate_hz=
     q0, qd0, _ = ref(0.0)
     plant.SetPositions(pc, q0)
     plant.SetVelocities(pc, qd0)
-    for eff, params in effs:
-        eff.apply_to_context(plant, pc, params)
     integ = ResetIntegratorFromFlags(sim, "runge_kutta3", period)
     integ.set_target_accuracy(accuracy)
     integ.set_maximum_step_size(period)
