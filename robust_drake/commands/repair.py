@@ -74,7 +74,7 @@ def run(args) -> int:
     n = len(rep["baseline"]["rms_fit"])
     rows = [["baseline", *rep["baseline"]["rms_fit"], *rep["baseline"]["rms_validate"]]]
     for e in rep["effects"]:
-        rows.append([f"+ {e['kind']}[{e['joint']}]", *([""] * n), *e["rms_validate_after"]])
+        rows.append([f"+ {e['kind']}[{'all' if e['joint'] is None else e['joint']}]", *([""] * n), *e["rms_validate_after"]])
     rows.append(["repaired", *rep["final"]["rms_fit"], *rep["final"]["rms_validate"]])
     header = ["model", *[f"fit j{j}" for j in range(n)], *[f"val j{j}" for j in range(n)]]
     print(f"robot {rep['robot']}, {rep['samples']} fit samples, RMS torque residual [N m]:")
