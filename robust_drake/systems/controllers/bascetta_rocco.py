@@ -128,7 +128,7 @@ class BascettaRoccoController(DiscreteController):
         x_d = self._x_d_port.Eval(context)
         u, w, rho = self.compute(context.get_time(), x_d[:n], x_d[n:2 * n], x_d[2 * n:],
                                  self._q_port.Eval(context), self._v_port.Eval(context), None)
-        discrete_state.get_mutable_vector(self._u_index).get_mutable_value()[:] = u
+        discrete_state.get_mutable_vector(self._u_index).get_mutable_value()[:] = self.with_feedforward(context, u)
         discrete_state.get_mutable_vector(self._w_index).get_mutable_value()[:] = w
         discrete_state.get_mutable_vector(self._rho_index).get_mutable_value()[0] = rho
 

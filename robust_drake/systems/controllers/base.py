@@ -60,10 +60,15 @@ class DiscreteController(LeafSystem):
             self._v_port.Eval(context),
             self._v_error_port.Eval(context),
         )
-        if self._feedforward:
-            q, v = self._q_port.Eval(context), self._v_port.Eval(context)
-            u = np.asarray(u, dtype=float) + sum(np.asarray(f(q, v), dtype=float) for f in self._feedforward)
-        discrete_state.get_mutable_vector(self._u_index).get_mutable_value()[:] = u
+        discrete_state.get_mutable_vector(self._u_index).get_mutable_value()[:] = self.with_feedforward(context, u)
+
+    def with_feedforward(self, context, u):
+        """``u`` plus every feedforward term evaluated at this tick's inputs (subclasses that
+        override ``_update`` call this on their command)."""
+        if not self._feedforward:
+            return u
+        q, v = self._q_port.Eval(context), self._v_port.Eval(context)
+        return np.asarray(u, dtype=float) + sum(np.asarray(f(q, v), dtype=float) for f in self._feedforward)
 
 
 def diag_gain(x, n: int, name: str) -> np.ndarray:
