@@ -77,6 +77,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    # Before numpy loads (the command modules import it lazily): single-threaded BLAS is far
+    # faster for this package's many small solves; set OPENBLAS_NUM_THREADS to override.
+    import os
+
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
