@@ -120,3 +120,14 @@ def test_demo_finds_the_hidden_effect_and_replay_improves(tmp_path):
     # the repaired Drake plant (with the stribeck block) follows the measured motion better
     assert max(rep["replay"]["after"]["rms_q"]) < 0.5 * max(rep["replay"]["before"]["rms_q"])
     assert os.path.exists(tmp_path / "report.md")
+    # the report's effects become plant-side blocks for a closed-loop diagram; the Stribeck block
+    # opposes motion on its joint and is largest at low speed
+    from robust_drake.identification.repair import closed_loop_effects, effects_from_report
+
+    blocks = [f(type("Ctx", (), {"n": 2})()) for f in closed_loop_effects(rep)]
+    assert len(blocks) == 1 and blocks[0].HasInputPort("state")
+    eff, params = effects_from_report(rep)[0]
+    coef = eff.coef_from_parameters(params, 2)
+    slow = eff.generalized_force(np.zeros(2), np.array([0.0, 0.1]), None, coef)[j]
+    fast = eff.generalized_force(np.zeros(2), np.array([0.0, 2.0]), None, coef)[j]
+    assert slow < 0 and abs(fast) < 0.1 * abs(slow)

@@ -428,3 +428,33 @@ def run_repair_demo(out_dir: str, kind: str = "stribeck", seed: int = 0, progres
     with open(os.path.join(out_dir, "report.json"), "w") as fh:
         json.dump(rep, fh, indent=2, default=_json_default)
     return rep
+
+
+def effects_from_report(report: dict) -> list:
+    """The chosen effects of a repair report as ``[(Effect, parameters), ...]`` (JSON round trip).
+
+    Shape parameters (Stribeck velocity, harmonic, ...) are read back from ``parameters``."""
+    from robust_drake.identification.effects import EFFECTS, make_effect
+
+    out = []
+    for e in report.get("effects", []):
+        cls = EFFECTS[e["kind"]]
+        params = dict(e["parameters"])
+        shape = {k: params[k] for k in cls.default_shape if k in params and k != "robot"}
+        if "robot" in cls.default_shape:
+            shape["robot"] = report.get("robot")
+        out.append((make_effect(e["kind"], e["joint"], **shape), params))
+    return out
+
+
+def closed_loop_effects(report: dict, sample_period: float = 1e-3) -> list:
+    """Plant-side effect block factories ``f(ctx) -> LeafSystem`` for ``ClosedLoopConfig.effects``
+    (the repaired model's force-type effects; input ``state`` [+ ``tau``], output
+    ``generalized_force``). Plant-modifying effects (rotor_inertia, payload) have no block and are
+    left out here: apply them with ``effects.load_plant(robot, effects_from_report(report))``."""
+    facts = []
+    for eff, params in effects_from_report(report):
+        if eff.modifies_plant:
+            continue
+        facts.append(lambda ctx, eff=eff, params=params: eff.block(ctx.n, params, sample_period=sample_period))
+    return facts
