@@ -1,0 +1,695 @@
+"""Confidence ellipsoid for the least-squares solutions of uncertain linear equations.
+
+El Ghaoui & Calafiore (CDC 1999), as used by Calafiore & Indri (CI, seeds/000) sections 3-5:
+find ``E(P, theta0) = {theta : (theta - theta0)^T P^-1 (theta - theta0) <= 1}`` of minimal
+trace(P) containing every solution of the normal equations
+
+    A(Delta) x = b(Delta),   [A b](Delta) = [A0 b0] + L Delta (I - H Delta)^-1 [R_A R_b]   (CI eqs. 2-4)
+
+for every Delta = diag(delta_i I_{r_i}), |delta_i| <= 1.
+
+Derivation used here (S-procedure with D-G scalings). With p = Delta q,
+q = R_A x - R_b t + H p and the homogenising variable t, x is a solution iff
+xi = (x, t, p) satisfies ``C xi := A0 x - b0 t + L p = 0`` (t = 1) and p_i = delta_i q_i.
+For every block, S_i = S_i^T >= 0 and G_i = -G_i^T give
+``phi_i = q_i^T S_i q_i - p_i^T S_i p_i + 2 q_i^T G_i p_i >= 0`` (real repeated scalars). Then
+
+    t^2 - (x - theta0 t)^T P^-1 (x - theta0 t) - sum_i phi_i >= 0    on ker C
+
+implies containment; with a Schur complement this is an LMI in (P, theta0, S, G).
+
+Two formulations, the same mathematics:
+
+* ``"full"``: restrict to ker C with an orthonormal null-space basis N (one dense LMI of size
+  dim(ker C) + m). Its size grows with the number of LFR channels (59 at the paper's 5
+  samples, ~10 n_m + 9 in general); dense, for small problems and cross-checks.
+* ``"chordal"`` (default): Finsler's lemma with a multiplier Y acting on the head
+  h = (x, t) only, ``Omega + Y C + C^T Y^T >= 0``. Because each sample's uncertainties enter
+  only that sample's channels, Omega + YC + C^TY^T has an arrow pattern (head h coupled to
+  every sample's channels, samples not coupled to each other). An arrow pattern is chordal,
+  so the big LMI is equivalent (Agler / Grone et al.) to one small LMI per clique
+  {h, p_g} plus one for {h, P}, linked by splitting matrices U_g of the head block
+  (sum U = 0). The head-only multiplier loses nothing when the per-sample quadratic blocks
+  are definite (the optimal Lagrange multiplier of the coupling equality is linear in h);
+  the benchmark measures the two formulations side by side (BUILD_NOTES "Calafiore & Indri").
+
+Scaling: theta is scaled by the column norms of D and the torques by the size of the LS
+estimate before the SDP, and mapped back after; trace(P) becomes a weighted trace, the same
+optimum. Solvers: Drake's bundled Clarabel, SCS, CSDP through ``MathematicalProgram``, or
+cvxpy (Clarabel/SCS) for cross-checks. Every solve is certified by sampling (``certify``).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.linalg
+import scipy.sparse as sp
+
+from robust_drake.errors import RobustDrakeError, SolverError
+from robust_drake.identification.lfr import LFR, random_deltas
+from robust_drake.identification.uncertainty import UncertaintyModel
+
+SOLVERS = ("clarabel", "scs", "csdp")
+
+
+# ============================================================================ data types
+@dataclass
+class Ellipsoid:
+    """E(P, theta0) (CI notation; E^T E = P)."""
+
+    theta0: np.ndarray
+    P: np.ndarray
+
+    def __post_init__(self):
+        self.theta0 = np.asarray(self.theta0, dtype=float).reshape(-1)
+        self.P = np.asarray(self.P, dtype=float)
+        m = self.theta0.size
+        if self.P.shape != (m, m):
+            raise RobustDrakeError(f"P must be {m}x{m} for theta0 of length {m}, got {self.P.shape}")
+        if not np.allclose(self.P, self.P.T, atol=1e-9 * max(1.0, np.abs(self.P).max())):
+            raise RobustDrakeError("P must be symmetric")
+        self.P = 0.5 * (self.P + self.P.T)
+
+    @property
+    def E(self) -> np.ndarray:
+        """Symmetric square root E = P^(1/2) (CI section 5.2), E^T E = P."""
+        w, V = np.linalg.eigh(self.P)
+        return (V * np.sqrt(np.clip(w, 0, None))) @ V.T
+
+    def radius(self, theta) -> np.ndarray:
+        """sqrt((theta - theta0)^T P^-1 (theta - theta0)); <= 1 inside. theta (..., m)."""
+        d = np.asarray(theta, dtype=float) - self.theta0
+        w, V = np.linalg.eigh(self.P)
+        if w[0] <= 0:
+            raise RobustDrakeError("P is not positive definite")
+        z = (d @ V) / np.sqrt(w)
+        return np.sqrt(np.sum(z * z, axis=-1))
+
+    def boundary_points(self, count: int, rng) -> np.ndarray:
+        """Random points theta0 + E z with ||z|| = 1 (CI eq. 10 on the boundary)."""
+        z = rng.normal(size=(count, self.theta0.size))
+        z /= np.linalg.norm(z, axis=1, keepdims=True)
+        return self.theta0 + z @ self.E.T
+
+    def to_dict(self) -> dict:
+        return {"theta0": self.theta0.tolist(), "P": self.P.tolist()}
+
+    def save(self, path) -> None:
+        """JSON with keys ``theta0`` and ``P``."""
+        with open(path, "w") as f:
+            json.dump(self.to_dict(), f, indent=2)
+
+    @classmethod
+    def load(cls, path) -> "Ellipsoid":
+        try:
+            with open(path) as f:
+                d = json.load(f)
+            return cls(np.array(d["theta0"]), np.array(d["P"]))
+        except (OSError, KeyError, ValueError, TypeError) as exc:
+            raise RobustDrakeError(f"cannot read ellipsoid from {path}: {exc} (need JSON keys 'theta0', 'P')") from exc
+
+
+@dataclass
+class EllipsoidResult:
+    ellipsoid: Ellipsoid
+    trace: float
+    solver: str
+    formulation: str
+    status: str
+    setup_seconds: float
+    solve_seconds: float
+    lmi_sizes: list
+    n_variables: int
+    min_lmi_eig: float
+    eigenvalues: np.ndarray
+    certificate: dict = field(default_factory=dict)
+
+    @property
+    def theta0(self):
+        return self.ellipsoid.theta0
+
+    @property
+    def P(self):
+        return self.ellipsoid.P
+
+
+@dataclass
+class SDPData:
+    """min cost.x  s.t.  svec(F_l(x)) = f0_l + B_l x in PSD (upper triangle, row-major), x[nonneg] >= 0."""
+
+    nv: int
+    cost: np.ndarray
+    lmis: list            # (d, f0 (ns,), B (ns, nv) csr)
+    nonneg: np.ndarray
+    P_idx: np.ndarray     # (m, m) variable index of P entries
+    x_idx: np.ndarray     # (m,)
+
+
+# ============================================================================ scaling
+@dataclass
+class _Scaling:
+    c: np.ndarray       # theta = gamma * c * theta_tilde
+    gamma: float
+
+
+def _scaled_model(model: UncertaintyModel) -> tuple[UncertaintyModel, _Scaling]:
+    m = model.n_params
+    c = 1.0 / np.maximum(np.sqrt(np.mean(model.D0 ** 2, axis=(0, 1))), 1e-12)
+    D = (model.D0 * c).reshape(-1, m)
+    th = np.linalg.lstsq(D, model.tau0.reshape(-1), rcond=None)[0]
+    gamma = float(max(np.sqrt(np.mean(th ** 2)), 1e-12))
+    coeffs = model.coeffs.copy()
+    coeffs[..., :m] *= c
+    coeffs[..., m] /= gamma
+    scaled = UncertaintyModel(model.D0 * c, model.tau0 / gamma, coeffs, model.scalar_names,
+                              model.delta_max)
+    return scaled, _Scaling(c, gamma)
+
+
+# ============================================================================ SDP assembly
+class _Vars:
+    def __init__(self):
+        self.n = 0
+
+    def new(self, k):
+        idx = np.arange(self.n, self.n + k)
+        self.n += k
+        return idx
+
+
+def _sym_basis(r):
+    """List of (a, b) for the symmetric basis of S^r."""
+    return [(a, b) for a in range(r) for b in range(a, r)]
+
+
+class _LMIBuilder:
+    """Collects svec(F(x)) = f0 + B x for one d x d LMI from dense per-variable matrices."""
+
+    def __init__(self, d):
+        self.d = d
+        self.iu, self.ju = np.triu_indices(d)
+        self.f0 = np.zeros(len(self.iu))
+        self.rows, self.cols, self.vals = [], [], []
+
+    def const(self, F):
+        self.f0 += F[self.iu, self.ju]
+
+    def add(self, var_idx, mats):
+        """mats (k, d, d) symmetric, var_idx (k,)."""
+        mats = np.asarray(mats)
+        V = mats[:, self.iu, self.ju]             # (k, ns)
+        k, e = np.nonzero(V)
+        self.rows.append(e)
+        self.cols.append(np.asarray(var_idx)[k])
+        self.vals.append(V[k, e])
+
+    def add_sparse(self, i, j, var, val):
+        """Entry (i, j) and (j, i) += val * x[var]."""
+        i, j = np.minimum(i, j), np.maximum(i, j)
+        pos = np.asarray(i) * self.d - (np.asarray(i) * (np.asarray(i) - 1)) // 2 + (np.asarray(j) - np.asarray(i))
+        self.rows.append(np.atleast_1d(pos))
+        self.cols.append(np.atleast_1d(var))
+        self.vals.append(np.atleast_1d(val).astype(float))
+
+    def finish(self, nv):
+        if self.rows:
+            r, c, v = (np.concatenate(a) for a in (self.rows, self.cols, self.vals))
+        else:
+            r = c = np.zeros(0, int)
+            v = np.zeros(0)
+        B = sp.csr_matrix((v, (r, c)), shape=(len(self.iu), nv))
+        B.sum_duplicates()
+        return (self.d, self.f0, B)
+
+
+def _block_phi_mats(Q, Pm, chans):
+    """Matrices of phi_i = q^T S q - p^T S p + 2 q^T G p w.r.t. the S_i and G_i basis
+    (q = Q z, p = Pm z), returned as (nS + nG, dz, dz) and the counts (nS, nG)."""
+    r = len(chans)
+    Qc, Pc = Q[chans], Pm[chans]
+    mats = []
+    for a, b in _sym_basis(r):
+        if a == b:
+            M = np.outer(Qc[a], Qc[a]) - np.outer(Pc[a], Pc[a])
+        else:
+            M = (np.outer(Qc[a], Qc[b]) + np.outer(Qc[b], Qc[a])
+                 - np.outer(Pc[a], Pc[b]) - np.outer(Pc[b], Pc[a]))
+        mats.append(M)
+    nS = len(mats)
+    for a in range(r):
+        for b in range(a + 1, r):
+            # 2 q^T K p, K = e_a e_b^T - e_b e_a^T  ->  2 (q_a p_b - q_b p_a), symmetrised
+            M = (np.outer(Qc[a], Pc[b]) + np.outer(Pc[b], Qc[a])
+                 - np.outer(Qc[b], Pc[a]) - np.outer(Pc[a], Qc[b]))
+            mats.append(M)
+    return np.array(mats).reshape(-1, Q.shape[1], Q.shape[1]), nS, len(mats) - nS
+
+
+def _add_scaling_vars(V, F: LFR, Q, Pm, nonneg_list, lmis_small):
+    """Variables S_i, G_i of every block of LFR F; returns (var_idx, phi mats) and records
+    S_i >= 0 constraints."""
+    idx_all, mats_all = [], []
+    for i in np.unique(F.scalars):
+        chans = np.flatnonzero(F.scalars == i)
+        mats, nS, nG = _block_phi_mats(Q, Pm, chans)
+        idx = V.new(nS + nG)
+        idx_all.append(idx)
+        mats_all.append(mats)
+        r = len(chans)
+        if r == 1:
+            nonneg_list.append(idx[:1])
+        else:
+            lmis_small.append((r, idx[:nS]))
+    if not idx_all:
+        return np.zeros(0, int), np.zeros((0, Q.shape[1], Q.shape[1]))
+    return np.concatenate(idx_all), np.concatenate(mats_all)
+
+
+def _small_psd_lmis(lmis_small, nv):
+    out = []
+    for r, idx in lmis_small:
+        b = _LMIBuilder(r)
+        for k, (a, c) in enumerate(_sym_basis(r)):
+            b.add_sparse(a, c, idx[k], 1.0 if a == c else 1.0)
+        # note: add_sparse on (a, a) adds once on the upper triangle -> value 1 (diag)
+        out.append(b.finish(nv))
+    return out
+
+
+def _head_P_lmi(V_n, m, P_idx, x_idx, extra):
+    """Clique {h, P}: [[W + e_t e_t^T + ..., T^T], [T, P]], T = [I_m, -theta0]; `extra(builder)`
+    adds the head-block terms (size 2m+1: h = (x, t) first, then P)."""
+    d = 2 * m + 1
+    b = _LMIBuilder(d)
+    F0 = np.zeros((d, d))
+    F0[m, m] = 1.0                                   # t^2
+    F0[m + 1:, :m] = np.eye(m)                        # T = [I, -theta0]
+    F0[:m, m + 1:] = np.eye(m)
+    b.const(F0)
+    for a in range(m):
+        b.add_sparse(m + 1 + a, m, x_idx[a], -1.0)    # -theta0 in T's t column
+        for c in range(a, m):
+            b.add_sparse(m + 1 + a, m + 1 + c, P_idx[a, c], 1.0)
+    extra(b)
+    return b
+
+
+def _Y_terms(b, Y_idx, Ch):
+    """Adds Z + Z^T, Z = Y C_h, to the head block of builder b: Y (m+1, m), C_h (m, m+1)."""
+    m1, m = Y_idx.shape
+    a, j, c = np.meshgrid(np.arange(m1), np.arange(m1), np.arange(m), indexing="ij")
+    a, j, c = a.ravel(), j.ravel(), c.ravel()
+    v = Ch[c, j] * np.where(a == j, 2.0, 1.0)
+    nz = v != 0
+    b.add_sparse(a[nz], j[nz], Y_idx[a[nz], c[nz]], v[nz])
+
+
+def _normal_parts(model: UncertaintyModel, samples_per_clique: int):
+    """Per clique LFR (local scalars) of its share of the normal equations [A b](delta)."""
+    F = model.sample_normal_lfrs()
+    m = model.n_params
+    A0b0 = sum(f.M0 for f in F)
+    cliques = []
+    for s in range(0, len(F), samples_per_clique):
+        grp = F[s:s + samples_per_clique]
+        L = np.hstack([f.L for f in grp])
+        R = np.vstack([f.R for f in grp])
+        H = scipy.linalg.block_diag(*[f.H for f in grp]) if grp else np.zeros((0, 0))
+        off, sc = 0, []
+        for f in grp:
+            sc.append(f.scalars + off)
+            off += f.n_scalars
+        cliques.append(LFR(np.zeros((m, m + 1)), L, R, H, np.concatenate(sc), off))
+    return A0b0, cliques
+
+
+def _finish(V, m, lmis, cost_w, nonneg_list, P_idx, x_idx):
+    cost = np.zeros(V.n)
+    for a in range(m):
+        cost[P_idx[a, a]] = cost_w[a]
+    nonneg = np.concatenate(nonneg_list) if nonneg_list else np.zeros(0, int)
+    return SDPData(V.n, cost, lmis, nonneg, P_idx, x_idx)
+
+
+def _new_P(V, m):
+    P_idx = np.zeros((m, m), int)
+    idx = V.new(m * (m + 1) // 2)
+    k = 0
+    for a in range(m):
+        for c in range(a, m):
+            P_idx[a, c] = P_idx[c, a] = idx[k]
+            k += 1
+    return P_idx
+
+
+def build_chordal_sdp(model: UncertaintyModel, cost_w, samples_per_clique: int = 1) -> SDPData:
+    """Arrow/chordal formulation (module docstring): one LMI of size m+1+n_g per clique of
+    samples, one of size 2m+1 for the ellipsoid, S_i >= 0 blocks."""
+    m = model.n_params
+    A0b0, cliques = _normal_parts(model, samples_per_clique)
+    J = np.diag(np.r_[np.ones(m), -1.0])
+    Ch = A0b0 @ J                                     # C_h h = A0 x - b0 t
+    V = _Vars()
+    P_idx = _new_P(V, m)
+    x_idx = V.new(m)
+    Y_idx = V.new((m + 1) * m).reshape(m + 1, m)
+    nonneg_list, lmis_small, lmis = [], [], []
+    m1 = m + 1
+    hu, hv = np.triu_indices(m1)
+    U_all = []
+    for F in cliques:
+        n = F.n_channels
+        d = m1 + n
+        Q = np.hstack([F.R @ J, F.H])
+        Pm = np.hstack([np.zeros((n, m1)), np.eye(n)])
+        b = _LMIBuilder(d)
+        idx, mats = _add_scaling_vars(V, F, Q, Pm, nonneg_list, lmis_small)
+        if len(idx):
+            b.add(idx, -mats)
+        U = V.new(len(hu))
+        U_all.append(U)
+        b.add_sparse(hu, hv, U, np.ones(len(hu)))
+        # Y c_g with c_g = L_g (m, n): entry (a, m1 + j) += sum_c Y[a, c] L[c, j]
+        for a in range(m1):
+            for c in range(m):
+                row = F.L[c]
+                nz = np.flatnonzero(row)
+                if nz.size:
+                    b.add_sparse(np.full(nz.size, a), m1 + nz, np.full(nz.size, Y_idx[a, c]), row[nz])
+        lmis.append(b)
+
+    def extra(bh):
+        # W_0 = -sum_g U_g, plus Y C_h + C_h^T Y^T on the head block
+        for U in U_all:
+            bh.add_sparse(hu, hv, U, -np.ones(len(hu)))
+        _Y_terms(bh, Y_idx, Ch)
+
+    head = _head_P_lmi(V.n, m, P_idx, x_idx, extra)
+    nv = V.n
+    out = [head.finish(nv)] + [b.finish(nv) for b in lmis] + _small_psd_lmis(lmis_small, nv)
+    return _finish(V, m, out, cost_w, nonneg_list, P_idx, x_idx)
+
+
+def build_full_sdp(model: UncertaintyModel, cost_w) -> SDPData:
+    """Dense null-space formulation: one LMI of size dim(ker C) + m."""
+    m = model.n_params
+    A0b0, cliques = _normal_parts(model, model.n_samples)
+    F = cliques[0]
+    n = F.n_channels
+    J = np.diag(np.r_[np.ones(m), -1.0])
+    m1 = m + 1
+    C = np.hstack([A0b0 @ J, F.L])
+    N = scipy.linalg.null_space(C)                  # (m1 + n, k), orthonormal
+    k = N.shape[1]
+    Q = np.hstack([F.R @ J, F.H]) @ N
+    Pm = np.hstack([np.zeros((n, m1)), np.eye(n)]) @ N
+    V = _Vars()
+    P_idx = _new_P(V, m)
+    x_idx = V.new(m)
+    nonneg_list, lmis_small = [], []
+    d = k + m
+    b = _LMIBuilder(d)
+    F0 = np.zeros((d, d))
+    et = N[m]                                        # t = e_t^T N zeta
+    F0[:k, :k] = np.outer(et, et)
+    Nx = N[:m]
+    F0[k:, :k] = Nx
+    F0[:k, k:] = Nx.T
+    b.const(F0)
+    # -theta0 N_t in the (P rows, zeta cols) block
+    for a in range(m):
+        nz = np.flatnonzero(et)
+        b.add_sparse(np.full(nz.size, k + a), nz, np.full(nz.size, x_idx[a]), -et[nz])
+        for c in range(a, m):
+            b.add_sparse(k + a, k + c, P_idx[a, c], 1.0)
+    idx, mats = _add_scaling_vars(V, F, Q, Pm, nonneg_list, lmis_small)
+    big = np.zeros((len(idx), d, d))
+    big[:, :k, :k] = -mats
+    b.add(idx, big)
+    nv = V.n
+    out = [b.finish(nv)] + _small_psd_lmis(lmis_small, nv)
+    return _finish(V, m, out, cost_w, nonneg_list, P_idx, x_idx)
+
+
+# ============================================================================ backends
+def _solve_drake(data: SDPData, solver: str, tol: float | None = None, lmi_mode: str = "lmi"):
+    from pydrake.solvers import (ClarabelSolver, CsdpSolver, MathematicalProgram, RemoveFreeVariableMethod,
+                                 ScsSolver, SolverOptions)
+
+    prog = MathematicalProgram()
+    x = prog.NewContinuousVariables(data.nv, "x")
+    prog.AddLinearCost(data.cost, 0.0, x)
+    if lmi_mode == "lmi":
+        for d, f0, B in data.lmis:
+            Bc = B.tocsc()
+            used = np.flatnonzero(np.diff(Bc.indptr))
+            iu, ju = np.triu_indices(d)
+            F = np.zeros((len(used) + 1, d, d))
+            F[0, iu, ju] = f0
+            Bu = Bc[:, used].toarray().T
+            F[1:, iu, ju] = Bu
+            F[1:, ju, iu] = Bu
+            F[0, ju, iu] = f0
+            prog.AddLinearMatrixInequalityConstraint(list(F), x[used])
+        return _drake_run(prog, x, data, solver, tol)
+    rows_A, rhs, Xvars = [], [], []
+    offset = data.nv
+    blocks = []
+    for d, f0, B in data.lmis:
+        X = prog.NewSymmetricContinuousVariables(d)
+        prog.AddPositiveSemidefiniteConstraint(X)
+        iu, ju = np.triu_indices(d)
+        Xv = X[iu, ju]
+        Xvars.append(Xv)
+        ns = len(iu)
+        # X_upper - B x = f0
+        blocks.append((offset, ns, B))
+        offset += ns
+        rhs.append(f0)
+    total = offset
+    # one sparse equality for everything: [ -B_l ... I ] [x; X] = f0
+    rows, cols, vals = [], [], []
+    r0 = 0
+    for (off, ns, B), f0 in zip(blocks, rhs):
+        Bc = B.tocoo()
+        rows.append(Bc.row + r0)
+        cols.append(Bc.col)
+        vals.append(-Bc.data)
+        rows.append(np.arange(ns) + r0)
+        cols.append(np.arange(ns) + off)
+        vals.append(np.ones(ns))
+        r0 += ns
+    A = sp.csc_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(r0, total))
+    allvars = np.concatenate([x] + Xvars)
+    prog.AddLinearEqualityConstraint(A, np.concatenate(rhs), allvars)
+    return _drake_run(prog, x, data, solver, tol)
+
+
+def _drake_run(prog, x, data, solver, tol):
+    from pydrake.solvers import ClarabelSolver, CsdpSolver, RemoveFreeVariableMethod, ScsSolver, SolverOptions
+
+    if data.nonneg.size:
+        prog.AddBoundingBoxConstraint(0.0, np.inf, x[data.nonneg])
+    opts = SolverOptions()
+    if solver == "clarabel":
+        s = ClarabelSolver()
+        if tol:
+            for key in ("tol_gap_abs", "tol_gap_rel", "tol_feas"):
+                opts.SetOption(s.id(), key, tol)
+    elif solver == "scs":
+        s = ScsSolver()
+        opts.SetOption(s.id(), "eps_abs", tol or 1e-7)
+        opts.SetOption(s.id(), "eps_rel", tol or 1e-7)
+        opts.SetOption(s.id(), "max_iters", 200000)
+    elif solver == "csdp":
+        s = CsdpSolver()
+        opts.SetOption(s.id(), "drake::RemoveFreeVariableMethod", int(RemoveFreeVariableMethod.kTwoSlackVariables))
+    else:
+        raise RobustDrakeError(f"unknown solver {solver!r}; use one of {SOLVERS}")
+    if not s.available() or not s.enabled():
+        raise SolverError(f"solver {solver} is not available in this Drake build")
+    t0 = time.perf_counter()
+    res = s.Solve(prog, None, opts)
+    solve_s = time.perf_counter() - t0
+    status = str(res.get_solution_result()).split(".")[-1]
+    if not res.is_success():
+        raise SolverError(f"{solver} failed on the ellipsoid SDP: {status}")
+    return res.GetSolution(x), status, solve_s
+
+
+def _solve_cvxpy(data: SDPData, solver: str):
+    import cvxpy as cp
+
+    x = cp.Variable(data.nv)
+    cons = []
+    for d, f0, B in data.lmis:
+        iu, ju = np.triu_indices(d)
+        ns = len(iu)
+        # svec -> full symmetric vec (column-major)
+        r = np.r_[iu * d + ju, ju * d + iu]
+        c = np.r_[np.arange(ns), np.arange(ns)]
+        keep = np.r_[np.ones(ns, bool), iu != ju]
+        S = sp.csr_matrix((np.ones(keep.sum()), (r[keep], c[keep])), shape=(d * d, ns))
+        vec = S @ f0 + (S @ B) @ x
+        M = cp.reshape(vec, (d, d), order="F")
+        cons.append(0.5 * (M + M.T) >> 0)
+    if data.nonneg.size:
+        cons.append(x[data.nonneg] >= 0)
+    prob = cp.Problem(cp.Minimize(data.cost @ x), cons)
+    name = {"clarabel": cp.CLARABEL, "scs": cp.SCS}.get(solver)
+    if name is None:
+        raise RobustDrakeError(f"cvxpy backend supports clarabel and scs, not {solver!r}")
+    t0 = time.perf_counter()
+    kw = {"eps": 1e-7, "max_iters": 200000} if solver == "scs" else {}
+    prob.solve(solver=name, **kw)
+    solve_s = time.perf_counter() - t0
+    if prob.status not in ("optimal",):
+        raise SolverError(f"cvxpy/{solver} status {prob.status} on the ellipsoid SDP")
+    return np.asarray(x.value), prob.status, solve_s
+
+
+def _solve_clarabel_direct(data: SDPData, tol: float | None = None):
+    """The same conic program handed straight to the pip ``clarabel`` package (no modelling
+    layer): s = b - A x in {R+^k, PSD triangles}; svec column-major upper, off-diagonals * sqrt 2."""
+    import clarabel
+
+    A_blocks, b_blocks, cones = [], [], []
+    if data.nonneg.size:
+        k = data.nonneg.size
+        A_blocks.append(sp.csr_matrix((-np.ones(k), (np.arange(k), data.nonneg)), shape=(k, data.nv)))
+        b_blocks.append(np.zeros(k))
+        cones.append(clarabel.NonnegativeConeT(k))
+    for d, f0, B in data.lmis:
+        iu, ju = np.triu_indices(d)
+        pos = {(i, j): n for n, (i, j) in enumerate(zip(iu, ju))}
+        perm = np.array([pos[(i, j)] for j in range(d) for i in range(j + 1)])
+        scale = np.array([1.0 if i == j else np.sqrt(2.0) for j in range(d) for i in range(j + 1)])
+        Bp = sp.diags(scale) @ B[perm]
+        A_blocks.append(-Bp)
+        b_blocks.append(scale * f0[perm])
+        cones.append(clarabel.PSDTriangleConeT(d))
+    A = sp.vstack(A_blocks).tocsc()
+    b = np.concatenate(b_blocks)
+    settings = clarabel.DefaultSettings()
+    settings.verbose = bool(int(__import__("os").environ.get("RD_VERBOSE", "0")))
+    settings.direct_solve_method = __import__("os").environ.get("RD_CLARABEL_METHOD", "faer")
+    if tol:
+        settings.tol_gap_abs = settings.tol_gap_rel = settings.tol_feas = tol
+    Pq = sp.csc_matrix((data.nv, data.nv))
+    t0 = time.perf_counter()
+    solver = clarabel.DefaultSolver(Pq, data.cost, A, b, cones, settings)
+    sol = solver.solve()
+    solve_s = time.perf_counter() - t0
+    status = str(sol.status)
+    if status not in ("Solved", "AlmostSolved"):
+        raise SolverError(f"clarabel (direct) failed on the ellipsoid SDP: {status}")
+    return np.asarray(sol.x), status, solve_s
+
+
+def _min_eigs(data: SDPData, xs):
+    worst = np.inf
+    for d, f0, B in data.lmis:
+        v = f0 + B @ xs
+        M = np.zeros((d, d))
+        iu, ju = np.triu_indices(d)
+        M[iu, ju] = v
+        M[ju, iu] = v
+        w = np.linalg.eigvalsh(M)
+        worst = min(worst, w[0] / max(1.0, np.abs(w).max()))
+    return float(worst)
+
+
+# ============================================================================ public API
+def solve_ellipsoid(model: UncertaintyModel, solver: str = "clarabel", formulation: str = "chordal",
+                    backend: str = "drake", samples_per_clique: int = 1, certify_draws: int = 1000,
+                    seed: int = 0, tol: float | None = None) -> EllipsoidResult:
+    """Minimal-trace confidence ellipsoid of the LS solutions (CI section 3.1, El Ghaoui & Calafiore).
+
+    Args:
+        model: per-sample linearised uncertainty model (``build_uncertainty_model``).
+        solver: "clarabel" | "scs" | "csdp" (Drake); "clarabel" | "scs" with backend "cvxpy".
+        formulation: "chordal" (scales to thousands of samples) or "full" (dense, small n_m).
+        samples_per_clique: samples merged per clique in the chordal formulation.
+        certify_draws: Delta draws for the certificate (0 = skip); half box vertices.
+
+    Raises SolverError when the solver fails or the certificate finds a LS solution outside.
+    """
+    t0 = time.perf_counter()
+    scaled, scl = _scaled_model(model)
+    m = model.n_params
+    cost_w = (scl.gamma * scl.c) ** 2                # trace(P) = sum_j (gamma c_j)^2 P~_jj
+    cost_w = cost_w / cost_w.max()
+    if formulation == "chordal":
+        data = build_chordal_sdp(scaled, cost_w, samples_per_clique)
+    elif formulation == "full":
+        data = build_full_sdp(scaled, cost_w)
+    else:
+        raise RobustDrakeError(f"unknown formulation {formulation!r}; use 'chordal' or 'full'")
+    if backend == "drake":
+        xs, status, solve_s = _solve_drake(data, solver, tol)
+    elif backend == "cvxpy":
+        xs, status, solve_s = _solve_cvxpy(data, solver)
+    elif backend == "direct":
+        if solver != "clarabel":
+            raise RobustDrakeError("backend 'direct' is the pip clarabel package: use solver='clarabel'")
+        xs, status, solve_s = _solve_clarabel_direct(data, tol)
+    else:
+        raise RobustDrakeError(f"unknown backend {backend!r}")
+    total = time.perf_counter() - t0
+    Pt = xs[data.P_idx]
+    th_t = xs[data.x_idx]
+    S = scl.gamma * scl.c
+    P = S[:, None] * Pt * S[None, :]
+    theta0 = S * th_t
+    eig = np.linalg.eigvalsh(P)
+    min_eig = _min_eigs(data, xs)
+    if eig[0] <= 0:
+        raise SolverError(f"{solver}: P is not positive definite (smallest eigenvalue {eig[0]:.3g})")
+    res = EllipsoidResult(Ellipsoid(theta0, P), float(np.trace(P)), solver if backend == "drake" else f"{backend}-{solver}",
+                          formulation, status, total - solve_s, solve_s, [d for d, _, _ in data.lmis], data.nv,
+                          min_eig, eig)
+    if min_eig < -1e-4:
+        raise SolverError(f"{solver}: solution violates an LMI (normalised eigenvalue {min_eig:.2e}); inaccurate solve")
+    if certify_draws:
+        res.certificate = certify(model, res.ellipsoid, certify_draws, seed)
+        if res.certificate["inside"] < res.certificate["tested"]:
+            raise SolverError(
+                f"{solver}: certificate failed, {res.certificate['tested'] - res.certificate['inside']} of "
+                f"{res.certificate['tested']} LS solutions outside the ellipsoid (max radius "
+                f"{res.certificate['max_radius']:.6f}); the solve is not accurate enough")
+    return res
+
+
+def certify(model: UncertaintyModel, ell: Ellipsoid, draws: int = 1000, seed: int = 0, tol: float = 1e-5) -> dict:
+    """Sample Delta in the box (half at random vertices), compute the exact LS solution of the
+    perturbed linearised equations, and count how many lie in E(P, theta0) (radius <= 1 + tol).
+    ``max_radius`` < 1 measures how tight the ellipsoid is along the sampled solutions."""
+    rng = np.random.default_rng(seed)
+    deltas = random_deltas(model.n_scalars, draws, rng)
+    th = model.ls_solutions(deltas)
+    r = ell.radius(th)
+    return {"tested": int(draws), "inside": int(np.sum(r <= 1.0 + tol)), "max_radius": float(r.max()),
+            "mean_radius": float(r.mean())}
+
+
+def result_to_dict(res: EllipsoidResult) -> dict:
+    return {
+        "theta0": res.theta0.tolist(),
+        "P": res.P.tolist(),
+        "trace": res.trace,
+        "solver": res.solver,
+        "formulation": res.formulation,
+        "status": res.status,
+        "setup_seconds": res.setup_seconds,
+        "solve_seconds": res.solve_seconds,
+        "lmi_sizes_max": int(max(res.lmi_sizes)),
+        "n_lmis": len(res.lmi_sizes),
+        "n_variables": res.n_variables,
+        "min_lmi_eig": res.min_lmi_eig,
+        "eigenvalues": res.eigenvalues.tolist(),
+        "containment": res.certificate,
+    }
