@@ -32,6 +32,8 @@ CONTROLLERS: dict[str, str] = {
     "lgplus": "robust_drake.systems.controllers.liu_goldenberg:make_lgplus",
     "sp1_robust_friction": "robust_drake.systems.controllers.spong_friction:make_sp1_robust_friction",
     "sp2_robust_friction": "robust_drake.systems.controllers.spong_friction:make_sp2_robust_friction",
+    "calafiore": "robust_drake.systems.controllers.calafiore_indri:make_calafiore",
+    "calafiore_nominal": "robust_drake.systems.controllers.calafiore_indri:make_calafiore_nominal",
 }
 
 OBSERVERS: dict[str, str] = {
