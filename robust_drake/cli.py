@@ -29,6 +29,8 @@ COMMAND_MODULES = [
     "robust_drake.commands.compare",
     "robust_drake.commands.sweep_rate",
     "robust_drake.commands.repair",
+    "robust_drake.commands.ellipsoid",
+    "robust_drake.commands.calafiore",
 ]
 
 

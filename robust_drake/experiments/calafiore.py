@@ -136,31 +136,28 @@ def set_imi_theta(plant, context, theta) -> None:
     Izz = th4 - s2 / m2
     b2.SetSpatialInertiaInBodyFrame(context, SpatialInertia.MakeFromCentralInertia(
         m2, c, RotationalInertia(0.5 * Izz, 0.5 * Izz, Izz)))
-    # link-1 inertia about joint 1
-    M1 = b1.CalcSpatialInertiaInBodyFrame(context)
-    I1_joint = float(M1.CalcRotationalInertia().get_moments()[2]) if False else None
-    from robust_drake.regressor import imi_theta_from_plant
-
-    act1 = [plant.get_joint_actuator(a) for a in plant.GetJointActuatorIndices()
-            if plant.get_joint_actuator(a).joint().index() == j1.index()][0]
-    act1.SetRotorInertia(context, 0.0)
-    base = imi_theta_from_plant(plant, context)[0]
+    # link-1 inertia about joint 1 (body frame origin on the joint axis) + m2 l1^2
+    I1 = float(b1.CalcSpatialInertiaInBodyFrame(context).CalcRotationalInertia().CopyToFullMatrix3()[2, 2])
+    base = I1 + m2 * l1 * l1
     Ir = th1 - base
     if Ir < 0:
         raise RobustDrakeError(f"theta1 = {th1} is smaller than the link inertias ({base:.4f})")
-    act1.SetRotorInertia(context, Ir)
+    act1 = [plant.get_joint_actuator(a) for a in plant.GetJointActuatorIndices()
+            if plant.get_joint_actuator(a).joint().index() == j1.index()][0]
     act1.SetGearRatio(context, 1.0)
-    del I1_joint
+    act1.SetRotorInertia(context, Ir)
 
 
 def physical_boundary_points(ell, count: int, rng, max_tries: int = 200000) -> np.ndarray:
-    """Points theta0 + E z, ||z|| = 1, that a plant can realise: Gamma2z > 0.005, friction >= 0."""
+    """Points theta0 + E z, ||z|| = 1, that the IMI plant can realise: Gamma2z > 0.005, link 2's
+    mass (raised if needed, see set_imi_theta) compatible with theta1, friction >= 0."""
     out = []
     tries = 0
     while len(out) < count and tries < max_tries:
         P = ell.boundary_points(1000, rng)
         tries += 1000
-        ok = (P[:, 3] > 0.005) & (P[:, 0] > 1.0) & np.all(P[:, 4:] >= 0, axis=1)
+        m2 = np.maximum(4.0, 2.0 * (P[:, 1] ** 2 + P[:, 2] ** 2) / np.maximum(P[:, 3], 1e-9))
+        ok = ((P[:, 3] > 0.005) & (P[:, 0] - 0.62 - m2 * 0.359 ** 2 > 0.05) & np.all(P[:, 4:] >= 0, axis=1))
         out.extend(P[ok][: count - len(out)])
     if len(out) < count:
         raise RobustDrakeError(f"found only {len(out)} physically realisable points on the ellipsoid boundary")
