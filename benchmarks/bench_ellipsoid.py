@@ -1,0 +1,70 @@
+"""Confidence-ellipsoid SDP (CI sections 3-5): setup and solve times per sample count, per
+solver and backend, the full (dense null-space) and the chordal formulations side by side.
+
+    OPENBLAS_NUM_THREADS=1 PYTHONPATH=. python benchmarks/bench_ellipsoid.py [--samples 5,20,100,1000] [--full 5,8]
+
+Prints one row per run: samples, formulation, backend/solver, LMI sizes, variables, setup and
+solve seconds, trace(P), certificate (inside/tested, max radius), and the chordal/full trace
+ratio where both ran (the conservatism of the head-only multiplier).
+"""
+
+import argparse
+import os
+import time
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+
+from robust_drake.errors import RobustDrakeError  # noqa: E402
+from robust_drake.experiments.calafiore import simulate_identification  # noqa: E402
+from robust_drake.identification.ellipsoid import solve_ellipsoid  # noqa: E402
+from robust_drake.identification.uncertainty import CI_BOUNDS, build_uncertainty_model  # noqa: E402
+from robust_drake.regressor import imi_scara_regressor  # noqa: E402
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--samples", default="5,10,20,50,100,200,500,1000")
+    ap.add_argument("--full", default="5", help="sample counts for the dense full formulation")
+    ap.add_argument("--runs", default="drake:clarabel,direct:clarabel,cvxpy:clarabel,drake:scs,drake:csdp")
+    ap.add_argument("--max-seconds", type=float, default=120.0, help="skip a backend after a slower run")
+    ap.add_argument("--draws", type=int, default=1000)
+    a = ap.parse_args()
+    counts = [int(x) for x in a.samples.split(",")]
+    full_counts = {int(x) for x in a.full.split(",") if x}
+    runs = [tuple(r.split(":")) for r in a.runs.split(",")]
+    slow = set()
+    print(f"{'n_m':>5} {'form':>8} {'backend/solver':>16} {'max LMI':>7} {'#LMI':>5} {'vars':>7} "
+          f"{'setup s':>8} {'solve s':>8} {'trace':>10} {'inside':>10} {'max r':>6} {'ratio':>6}")
+    for n in counts:
+        data = simulate_identification(n, seed=0)
+        t0 = time.perf_counter()
+        model = build_uncertainty_model(imi_scara_regressor, data["q"], data["qd"], data["qdd"], data["tau"], CI_BOUNDS)
+        t_model = time.perf_counter() - t0
+        traces = {}
+        forms = (["full"] if n in full_counts else []) + ["chordal"]
+        for form in forms:
+            for backend, solver in runs:
+                key = (form, backend, solver)
+                if key in slow:
+                    continue
+                if form == "full" and backend == "drake" and solver == "clarabel" and n > 5:
+                    continue
+                try:
+                    r = solve_ellipsoid(model, solver=solver, formulation=form, backend=backend, certify_draws=a.draws)
+                except RobustDrakeError as exc:
+                    print(f"{n:>5} {form:>8} {backend + '/' + solver:>16}  FAILED: {str(exc)[:90]}")
+                    continue
+                traces.setdefault(form, r.trace)
+                ratio = r.trace / traces["full"] if "full" in traces and form == "chordal" else float("nan")
+                c = r.certificate
+                print(f"{n:>5} {form:>8} {backend + '/' + solver:>16} {max(r.lmi_sizes):>7} {len(r.lmi_sizes):>5} "
+                      f"{r.n_variables:>7} {r.setup_seconds + t_model:>8.2f} {r.solve_seconds:>8.2f} {r.trace:>10.4g} "
+                      f"{c['inside']:>5}/{c['tested']:<4} {c['max_radius']:>6.3f} {ratio:>6.3f}", flush=True)
+                if r.solve_seconds > a.max_seconds:
+                    slow.add(key)
+
+
+if __name__ == "__main__":
+    main()
