@@ -111,3 +111,29 @@ def test_ellipsoid_json_roundtrip(tmp_path):
     (tmp_path / "bad.json").write_text('{"theta0": [1]}')
     with pytest.raises(RobustDrakeError, match="theta0"):
         Ellipsoid.load(tmp_path / "bad.json")
+
+
+def test_cli_json_contract_and_csv_input(tmp_path, capsys):
+    import json
+
+    import pandas as pd
+
+    from robust_drake.cli import main
+    from robust_drake.experiments.calafiore import simulate_identification
+
+    assert main(["ellipsoid", "--robot", "imi_scara", "--samples", "5", "--draws", "200", "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    for key in ("theta0", "P", "trace", "solver", "setup_seconds", "solve_seconds", "containment",
+                "true_theta_radius"):
+        assert key in d
+    assert set(d["containment"]) >= {"tested", "inside", "max_radius"}
+    assert d["containment"]["inside"] == d["containment"]["tested"] == 200
+    s = simulate_identification(8, seed=3)
+    cols = {f"{k}{i + 1}": s[k][:, i] for k in ("q", "qd", "qdd", "tau") for i in range(2)}
+    pd.DataFrame(cols).to_csv(tmp_path / "m.csv", index=False)
+    assert main(["ellipsoid", "--data", str(tmp_path / "m.csv"), "--bounds", "tau=4.5744,0.5459;qdd=0.5892,1.6478",
+                 "--draws", "100", "--json", "--save", str(tmp_path / "e.json")]) == 0
+    d2 = json.loads(capsys.readouterr().out)
+    assert d2["n_samples"] == 8 and d2["true_theta_radius"] is None
+    assert Ellipsoid.load(tmp_path / "e.json").theta0.size == 8
+    assert main(["ellipsoid", "--data", str(tmp_path / "nope.csv")]) == 2
