@@ -274,8 +274,7 @@ def _small_psd_lmis(lmis_small, nv):
     for r, idx in lmis_small:
         b = _LMIBuilder(r)
         for k, (a, c) in enumerate(_sym_basis(r)):
-            b.add_sparse(a, c, idx[k], 1.0 if a == c else 1.0)
-        # note: add_sparse on (a, a) adds once on the upper triangle -> value 1 (diag)
+            b.add_sparse(a, c, idx[k], 1.0)      # svec entry (a, c) of S_i is the variable itself
         out.append(b.finish(nv))
     return out
 
