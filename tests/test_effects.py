@@ -270,3 +270,75 @@ def test_effect_blocks_in_the_closed_loop_builder():
     assert abs(q_end[1]) > 0.01  # the offset does push the arm away from the set point
     # 3 s of a lightly damped PD: not fully settled (measured 5 mN m left); 0.01 << c = 0.3
     np.testing.assert_allclose(u_end - g_end, [0.0, c], atol=0.01)
+
+
+def _q_path(t):
+    """A joint-0 path with large and small reversals (rad), and its velocity."""
+    q = 0.3 * np.sin(2 * np.pi * t) + 0.02 * np.sin(2 * np.pi * 7 * t)
+    qd = 0.6 * np.pi * np.cos(2 * np.pi * t) + 0.28 * np.pi * np.cos(2 * np.pi * 7 * t)
+    return q, qd
+
+
+@pytest.mark.parametrize("joint", [0, 1])
+def test_presliding_friction_block_equals_minus_columns(joint):
+    """Dahl presliding friction: the block (continuous state z, dz/dt = (qd - |qd| z)/x0) driven
+    by a known motion outputs -F_d z, and the columns integrated on the sampled path give the
+    same z (exact per monotone step, so they agree up to the sampling of the reversals)."""
+    from pydrake.systems.primitives import VectorLogSink
+    from pydrake.trajectories import PiecewisePolynomial
+    from pydrake.systems.primitives import TrajectorySource
+
+    Fd, x0 = 0.1, 0.01
+    params = {"presliding_torque": Fd, "presliding_displacement": x0}
+    eff = make_effect("presliding_friction", joint, presliding_displacement=x0)
+    t = np.arange(0.0, 2.0 + 1e-9, 5e-4)
+    q, qd = _q_path(t)
+    X = np.zeros((2 * N, len(t)))
+    X[joint], X[N + joint] = q, qd
+    builder = DiagramBuilder()
+    src = builder.AddSystem(TrajectorySource(PiecewisePolynomial.CubicShapePreserving(t, X, True)))
+    blk = builder.AddSystem(eff.block(N, params))
+    builder.Connect(src.get_output_port(), blk.GetInputPort("state"))
+    log = builder.AddSystem(VectorLogSink(N, publish_period=0.01))
+    builder.Connect(blk.GetOutputPort("generalized_force"), log.get_input_port())
+    sim = Simulator(builder.Build())
+    sim.get_mutable_integrator().set_target_accuracy(1e-7)
+    sim.AdvanceTo(2.0)
+    lg = log.FindLog(sim.get_context())
+    tl, f = lg.sample_times(), lg.data()
+    cols, names = eff.columns(SimpleNamespace(t=t, q=X[:N].T, qd=X[N:].T, qdd=None, tau=None))
+    assert names == [f"presliding_friction:presliding_torque{joint + 1}"]
+    coef = eff.coef_from_parameters(params, N)
+    model = np.array([np.interp(tl, t, (cols @ coef)[:, i]) for i in range(N)])
+    np.testing.assert_allclose(f, -model, atol=2e-3 * Fd)
+    other = 1 - joint
+    assert np.all(f[other] == 0.0) and np.all(cols[:, other] == 0.0)
+    # physics: |z| <= 1; after a long run in one direction the friction opposes the motion at
+    # full level F_d; the state lags sign(qd) after a reversal (hysteresis, not a switch)
+    z = cols[:, joint, 0]
+    assert np.all(np.abs(z) <= 1.0 + 1e-12)
+    rise = np.argmin(np.abs(t - 0.12))  # qd > 0 on [0, 0.12] s: 0.2 rad = 20 x0 of rise
+    assert np.all(qd[:rise] > 0) and z[rise] == pytest.approx(1.0, abs=1e-6)
+    k = np.nonzero(np.diff(np.sign(qd)) != 0)[0][0]  # first reversal (+ -> -)
+    assert qd[k] > 0 > qd[k + 1]
+    assert z[k + 2] > 0.9  # just after the reversal the friction still points the old way
+    back = np.nonzero(q[k] - q[k + 1:] > 3 * x0)[0][0] + k + 1  # 3 x0 back: settled
+    assert z[back] < -0.85
+    assert eff.parameters(coef)["presliding_torque"] == pytest.approx(Fd)
+
+
+def test_presliding_friction_is_rate_independent_and_resets_per_file():
+    """Dahl's state is a function of the displacement history, not of time: the same path run
+    twice as fast gives the same z at the same positions; the columns restart (z = 0) at every
+    file boundary instead of integrating across the jump between concatenated files."""
+    eff = make_effect("presliding_friction", 0, presliding_displacement=0.02)
+    t = np.linspace(0.0, 2.0, 4001)
+    q, _ = _q_path(t)
+    slow = eff.columns(SimpleNamespace(t=t, q=np.c_[q, q], qd=None, qdd=None, tau=None))[0][:, 0, 0]
+    fast = eff.columns(SimpleNamespace(t=t / 2, q=np.c_[q, q], qd=None, qdd=None, tau=None))[0][:, 0, 0]
+    np.testing.assert_array_equal(slow, fast)
+    qq = np.r_[q, q][:, None] * np.ones((1, N))
+    seg = np.r_[np.zeros(len(q), int), np.ones(len(q), int)]
+    two = eff.columns(SimpleNamespace(t=np.r_[t, t + 3], q=qq, qd=None, qdd=None, tau=None, segment=seg))[0]
+    np.testing.assert_array_equal(two[:len(q), 0, 0], two[len(q):, 0, 0])
+    assert two[len(q), 0, 0] == 0.0

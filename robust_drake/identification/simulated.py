@@ -302,6 +302,9 @@ HIDDEN_CASES: dict[str, dict] = {
     "spring": dict(joint=1, parameters={"stiffness": 0.15}, key="stiffness", rtol=0.3),
     "time_delay": dict(joint=None, parameters={"delay": 0.012}, key="delay", rtol=0.4),
     "payload": dict(joint=None, parameters={"mass": 0.2}, key="mass", rtol=0.3),
+    "presliding_friction": dict(joint=0, parameters={"presliding_torque": 0.1,
+                                                     "presliding_displacement": 0.01},
+                                key="presliding_torque", rtol=0.3),
 }
 
 
