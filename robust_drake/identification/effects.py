@@ -705,7 +705,9 @@ class PreslidingFriction(Effect):
     friction lag, not a time delay). Coefficient ``presliding_torque`` F_d [N m]: fitted next to
     the baseline's sharp ``F_c sign(qd)``, F_d > 0 means part of the Coulomb level is reached
     only gradually after a reversal (presliding compliance of gear teeth / bearings, backlash
-    being taken up), F_d < 0 a breakaway overshoot that decays over x0.
+    being taken up). Dahl's model has F_d >= 0; the selection rejects a negative fit (a
+    breakaway that decays after a reversal is the ``stribeck`` kind), see
+    ``selection.PLAUSIBLE``.
 
     Columns: z integrated along each file's filtered positions (exact solution for a piecewise
     monotone sample path: z_{k+1} = s + (z_k - s) exp(-|dq|/x0), s = sign(dq)), starting at

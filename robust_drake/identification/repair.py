@@ -99,8 +99,8 @@ def plausibility(kind: str, params: dict, robot: str) -> str:
                 + "adds a torque dip at every reversal")
     if kind == "presliding_friction":
         Fd, x0 = p.get("presliding_torque", np.nan), p.get("presliding_displacement", np.nan)
-        txt = (f"presliding (Dahl) friction: {Fd:.3g} N m of the friction level builds up (F_d > 0) "
-               f"or decays (F_d < 0) over ~{x0:.3g} rad ({np.degrees(x0):.2g} deg) of motion after "
+        txt = (f"presliding (Dahl) friction: {Fd:.3g} N m of the friction level builds up "
+               f"over ~{x0:.3g} rad ({np.degrees(x0):.2g} deg) of motion after "
                "every reversal: compliance of gear teeth and bearings before gross sliding")
         if dfki:
             txt += " (AK80-6: 6:1 planetary stage, about 0.15 deg backlash taken up at each reversal)"
