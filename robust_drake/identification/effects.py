@@ -769,7 +769,7 @@ class PreslidingFrictionBlock(LeafSystem):
         self.x0 = float(effect.shape["presliding_displacement"])
         self.Fd = np.zeros(n)
         js = effect.joints(n)
-        self.Fd[js] = np.asarray(coef, dtype=float).reshape(-1)[:len(js)] if len(coef) else 0.0
+        self.Fd[js] = np.asarray(coef, dtype=float).reshape(-1)  # one F_d per acting joint
         self.active = np.zeros(n)
         self.active[js] = 1.0
         self.set_name(f"effect_presliding_friction_{'all' if effect.joint is None else effect.joint}")
