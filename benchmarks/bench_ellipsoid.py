@@ -5,7 +5,11 @@ solver and backend, the full (dense null-space) and the chordal formulations sid
 
 Prints one row per run: samples, formulation, backend/solver, LMI sizes, variables, setup and
 solve seconds, trace(P), certificate (inside/tested, max radius), and the chordal/full trace
-ratio where both ran (the conservatism of the head-only multiplier).
+ratio where both ran (the conservatism of the head-only multiplier), and the closed-form
+``energy`` bound (no solver) with its trace ratio to the chordal SDP where both ran.
+
+    PYTHONPATH=. python benchmarks/bench_ellipsoid.py --samples 5,20,100,300,1000,3000 --runs drake:clarabel \
+        --chordal-max 1000        # the energy-vs-chordal table of BUILD_NOTES
 """
 
 import argparse
@@ -30,6 +34,8 @@ def main():
     ap.add_argument("--runs", default="drake:clarabel,direct:clarabel,cvxpy:clarabel,drake:scs,drake:csdp")
     ap.add_argument("--max-seconds", type=float, default=120.0, help="skip a backend after a slower run")
     ap.add_argument("--draws", type=int, default=1000)
+    ap.add_argument("--chordal-max", type=int, default=100000, help="largest sample count for the chordal SDP")
+    ap.add_argument("--no-energy", action="store_true", help="skip the closed-form energy bound")
     a = ap.parse_args()
     counts = [int(x) for x in a.samples.split(",")]
     full_counts = {int(x) for x in a.full.split(",") if x}
@@ -43,9 +49,10 @@ def main():
         model = build_uncertainty_model(imi_scara_regressor, data["q"], data["qd"], data["qdd"], data["tau"], CI_BOUNDS)
         t_model = time.perf_counter() - t0
         traces = {}
-        forms = (["full"] if n in full_counts else []) + ["chordal"]
+        forms = (["full"] if n in full_counts else []) + (["chordal"] if n <= a.chordal_max else [])
+        forms += [] if a.no_energy else ["energy"]
         for form in forms:
-            for backend, solver in runs:
+            for backend, solver in (runs[:1] if form == "energy" else runs):
                 key = (form, backend, solver)
                 if key in slow:
                     continue
@@ -57,9 +64,15 @@ def main():
                     print(f"{n:>5} {form:>8} {backend + '/' + solver:>16}  FAILED: {str(exc)[:90]}")
                     continue
                 traces.setdefault(form, r.trace)
-                ratio = r.trace / traces["full"] if "full" in traces and form == "chordal" else float("nan")
+                ratio = float("nan")
+                if form == "chordal" and "full" in traces:
+                    ratio = r.trace / traces["full"]
+                elif form == "energy" and "chordal" in traces:
+                    ratio = r.trace / traces["chordal"]
+                if form == "energy":
+                    backend, solver = "none", "closed-form"
                 c = r.certificate
-                print(f"{n:>5} {form:>8} {backend + '/' + solver:>16} {max(r.lmi_sizes):>7} {len(r.lmi_sizes):>5} "
+                print(f"{n:>5} {form:>8} {backend + '/' + solver:>16} {max(r.lmi_sizes, default=0):>7} {len(r.lmi_sizes):>5} "
                       f"{r.n_variables:>7} {r.setup_seconds + t_model:>8.2f} {r.solve_seconds:>8.2f} {r.trace:>10.4g} "
                       f"{c['inside']:>5}/{c['tested']:<4} {c['max_radius']:>6.3f} {ratio:>6.3f}", flush=True)
                 if r.solve_seconds > a.max_seconds:
