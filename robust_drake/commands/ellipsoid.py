@@ -22,7 +22,7 @@ def register(subparsers):
                    help="drake: MathematicalProgram (default); cvxpy; direct: pip clarabel")
     p.add_argument("--formulation", default="chordal", choices=["chordal", "full", "energy", "auto"],
                    help="chordal SDP (default); full dense SDP; energy: sound closed-form bound (ms at 1000 "
-                        "samples, 3-7x the SDP's trace); auto: chordal up to 200 samples, energy above")
+                        "samples, 2.2-4x the SDP's trace); auto: chordal up to 200 samples, energy above")
     p.add_argument("--draws", type=int, default=1000, help="Delta draws for the certificate")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--data", default=None, help="CSV with columns q1,q2,qd1,qd2,qdd1,qdd2,tau1,tau2")
