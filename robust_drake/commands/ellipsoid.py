@@ -21,7 +21,7 @@ def register(subparsers):
     p.add_argument("--backend", default="drake", choices=["drake", "cvxpy", "direct"],
                    help="drake: MathematicalProgram (default); cvxpy; direct: pip clarabel")
     p.add_argument("--formulation", default="chordal", choices=["chordal", "full", "energy", "auto"],
-                   help="chordal SDP (default); full dense SDP; energy: sound closed-form bound (ms at 1000 "
+                   help="chordal SDP (default); full dense SDP; energy: sound closed-form bound (~5 s at 1000 "
                         "samples, 2.2-4x the SDP's trace); auto: chordal up to 200 samples, energy above")
     p.add_argument("--draws", type=int, default=1000, help="Delta draws for the certificate")
     p.add_argument("--seed", type=int, default=0)

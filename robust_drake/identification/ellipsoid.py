@@ -676,7 +676,7 @@ def energy_bound(model: UncertaintyModel, lambda_iters: int = 8) -> tuple[np.nda
 
         A(delta) e = r(delta),  A = sum_k D_k^T D_k,  r = sum_k D_k^T (tau_k - D_k theta0),
 
-    r quadratic in each sample's own scalars. Three sound steps, all O(#scalars):
+    r quadratic in each sample's own scalars. Sound steps, all O(#scalars) (eigendecompositions of small matrices):
 
     1. ``A(delta) >= A_min := A0^1/2 (I - sum_j |M_j|) A0^1/2`` with M_j = A0^-1/2 N_j A0^-1/2,
        N_j = C_j^T D0 + D0^T C_j (the linear part; E^T E >= 0 is dropped; |M| is the matrix
@@ -701,8 +701,8 @@ def energy_bound(model: UncertaintyModel, lambda_iters: int = 8) -> tuple[np.nda
 
     lambda is re-weighted towards the worst direction for a few rounds (any lambda is sound).
     The smallest-trace candidate of steps 3-4 is returned.
-    Returns (theta0, P, info). The first-order part is as tight as the SDP on the IMI data; the
-    loss is step 1 (the worst-case A over the whole box, ||sum |M_j||| ~ 0.5 there): measured
+    Returns (centre, P, info). The first-order part is as tight as the SDP on the IMI data; the
+    loss is the worst-case A over the whole box (||sum |M_j||| ~ 0.5 there): measured
     2.2-4x the chordal SDP's trace (BUILD_NOTES "Calafiore & Indri").
     """
     K, s, n, m1 = model.coeffs.shape
@@ -798,7 +798,7 @@ def solve_ellipsoid(model: UncertaintyModel, solver: str = "clarabel", formulati
         model: per-sample linearised uncertainty model (``build_uncertainty_model``).
         solver: "clarabel" | "scs" | "csdp" (Drake); "clarabel" | "scs" with backend "cvxpy".
         formulation: "chordal" (SDP, default; 100 samples ~10 s, 1000 samples ~4 min), "full"
-            (dense SDP, small n_m), "energy" (sound closed form ``energy_bound``, milliseconds at
+            (dense SDP, small n_m), "energy" (sound closed form ``energy_bound``, ~5 s at
             1000 samples, 2.2-4x the chordal trace), or "auto" (chordal up to
             ``AUTO_ENERGY_ABOVE`` samples, energy above).
         solver_options: extra Drake ``SolverOptions`` entries (name -> value) for the solver.
