@@ -78,23 +78,23 @@ def _check(ctx, name):
             f"set friction_compensation=False or the friction is compensated twice")
 
 
+def _make_robust_friction(ctx, name, cls, which, epsilon, label, k_hat, rho_k, params):
+    _check(ctx, name)
+    rho = extended_bounds(rho_k=rho_k)[which]
+    p = dict(theta0=_theta0_ext(k_hat), rho=rho, epsilon=epsilon, K=D2R2_K, Lambda=D2R2_LAMBDA)
+    p.update(params)
+    c = cls(ctx.n, ctx.period, d2r2_friction_regressor, **p)
+    c.set_name(label)
+    return c
+
+
 def make_sp1_robust_friction(ctx, k_hat=K_HAT, rho_k=RHO_K, **params):
     """Registry factory ``sp1_robust_friction``."""
-    _check(ctx, "sp1_robust_friction")
-    rho1, _ = extended_bounds(rho_k=rho_k)
-    p = dict(theta0=_theta0_ext(k_hat), rho=rho1, epsilon=EPSILON_SP1, K=D2R2_K, Lambda=D2R2_LAMBDA)
-    p.update(params)
-    c = SpongSP1Controller(ctx.n, ctx.period, d2r2_friction_regressor, **p)
-    c.set_name("SP1RobustFriction")
-    return c
+    return _make_robust_friction(ctx, "sp1_robust_friction", SpongSP1Controller, 0, EPSILON_SP1,
+                                 "SP1RobustFriction", k_hat, rho_k, params)
 
 
 def make_sp2_robust_friction(ctx, k_hat=K_HAT, rho_k=RHO_K, **params):
     """Registry factory ``sp2_robust_friction``."""
-    _check(ctx, "sp2_robust_friction")
-    _, rho2 = extended_bounds(rho_k=rho_k)
-    p = dict(theta0=_theta0_ext(k_hat), rho=rho2, epsilon=EPSILON_SP2, K=D2R2_K, Lambda=D2R2_LAMBDA)
-    p.update(params)
-    c = SpongSP2Controller(ctx.n, ctx.period, d2r2_friction_regressor, **p)
-    c.set_name("SP2RobustFriction")
-    return c
+    return _make_robust_friction(ctx, "sp2_robust_friction", SpongSP2Controller, 1, EPSILON_SP2,
+                                 "SP2RobustFriction", k_hat, rho_k, params)
