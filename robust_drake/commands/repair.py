@@ -38,6 +38,11 @@ def register(subparsers) -> None:
     p.add_argument("--max-effects", type=int, default=4)
     p.add_argument("--no-consistent", action="store_true",
                    help="skip the physically consistent (pseudo-inertia LMI) estimate")
+    p.add_argument("--no-nominal", action="store_true",
+                   help="skip the comparison with the URDF's parameters (effects inside the rigid-body "
+                        "span, e.g. payload, and the joint of a torque_scale error)")
+    p.add_argument("--sigma-rel", type=float, default=None, metavar="FRAC",
+                   help="relative trust in the URDF's base parameters for that comparison (default 0.05)")
     p.add_argument("--no-replay", action="store_true", help="skip the replay through the Drake plant")
     p.add_argument("--no-plots", action="store_true", help="do not write PNG plots")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
@@ -64,8 +69,12 @@ def run(args) -> int:
         cutoff_hz=DEFAULT_CUTOFF_HZ if args.cutoff is None else args.cutoff,
         kinds=kinds, min_gain=MIN_GAIN if args.min_gain is None else args.min_gain,
         max_effects=args.max_effects, consistent=not args.no_consistent, replay=not args.no_replay,
-        plots=not args.no_plots,
+        plots=not args.no_plots, nominal=not args.no_nominal,
     )
+    if args.sigma_rel is not None:
+        if not args.sigma_rel > 0:
+            raise RobustDrakeError(f"--sigma-rel must be > 0, got {args.sigma_rel}")
+        opts.sigma_rel = args.sigma_rel
     log = None if args.json else (lambda msg: print(msg, file=sys.stderr))
     rep = run_repair(args.fit, opts, validate_paths=args.validate, out_dir=args.out, progress=log)
     if args.json:
@@ -82,6 +91,12 @@ def run(args) -> int:
     print(f"unexplained_structure: {str(rep['unexplained_structure']).lower()}"
           + (f" ({', '.join(w['variable'] + ' on joint ' + str(w['joint']) for w in rep['unexplained_where'])})"
              if rep["unexplained_structure"] else ""))
+    nom = rep.get("nominal")
+    if nom:
+        print(f"URDF parameters: shift chi2 {nom['chi2']:.1f} (99 % limit {nom['chi2_limit']:.1f}), "
+              + (f"explained by {nom['named']}" if nom.get("named") else
+                 "not explained by a payload or rotor inertia" if nom["unexplained_shift"] else "not significant")
+              + f"; URDF-model validate {[round(x, 4) for x in nom['rms_validate']]}")
     rp = rep.get("replay") or {}
     if rp.get("before") and rp.get("after"):
         print(f"replay RMS q error [rad]: before {[round(x, 4) for x in rp['before']['rms_q']]}, "

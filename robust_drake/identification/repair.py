@@ -54,6 +54,8 @@ class RepairOptions:
     replay_windows: int = 20
     plots: bool = True
     weighted: bool = True
+    nominal: bool = True  # compare with the URDF's parameters (nominal.py): span effects, torque_scale joint
+    sigma_rel: float = 0.05  # relative trust in the URDF's base parameters for that comparison
     notes: list[str] = field(default_factory=list)
 
 
@@ -146,7 +148,7 @@ def run_repair(fit_paths, options: RepairOptions, validate_paths=None, out_dir=N
         cf, cv = ColumnCache(fit, regressor), ColumnCache(val, regressor)
 
         # ---- baseline: rigid body + Coulomb + viscous
-        if opts.weighted:  # two-step WLS on the baseline fixes the per-joint weights for every model
+        if opts.weighted:  # two-step WLS on the baseline fixes the per-joint weights of the selection
             Y0, names0, _ = cf.model([])
             weights = 1.0 / np.maximum(solve_wls(Y0, fit.tau, names0, warn=False).rms, 1e-12)
         else:
@@ -162,7 +164,40 @@ def run_repair(fit_paths, options: RepairOptions, validate_paths=None, out_dir=N
         cands = all_candidates(fit.n, kinds=opts.kinds, robot=opts.robot)
         sel = forward_select(cf, cands, min_gain=opts.min_gain, max_effects=opts.max_effects, progress=log,
                              weights=weights)
-        chosen = sel.chosen
+        chosen = list(sel.chosen)
+
+        def refit_weights(effects):
+            # second WLS step: per-joint weights from the chosen model's own residual (the
+            # baseline's over-weights a joint whose residual an effect was hiding, e.g. a torque
+            # scale error, and biases that effect's estimate)
+            if not (opts.weighted and effects):
+                return weights
+            f, _ = fit_model(cf, effects, weights)
+            return 1.0 / np.maximum(f.rms, 1e-12)
+
+        weights = refit_weights(chosen)
+        step_label = {effect_label(e): effect_label(e) for e in chosen}
+        joint_resolution = {}
+        if opts.nominal:  # torque_scale: pick the joint against the URDF (nominal.resolve_torque_scale)
+            from robust_drake.identification.effects import make_effect
+            from robust_drake.identification.nominal import resolve_torque_scale
+
+            p0 = len(regressor.base_names)
+            for k, e in enumerate(chosen):
+                if e.kind != "torque_scale" or e.joint is None:
+                    continue
+                fk, sl = fit_model(cf, chosen, weights)
+                res = resolve_torque_scale(fk.theta[:p0], fk.se[:p0], regressor.base_parameters(), e.joint,
+                                           float(e.parameters(fk.theta[sl[k]])["gain_error"]), fit.n)
+                if res["swapped"]:
+                    new_e = make_effect("torque_scale", res["joint"])
+                    step_label[effect_label(new_e)] = effect_label(e)
+                    chosen[k] = new_e
+                    weights = refit_weights(chosen)
+                    log(f"torque_scale: the equivalent gain on joint {res['joint']} keeps the rigid-body "
+                        f"parameters closer to the URDF (chi2 {res['chi2_swapped']:.1f} vs "
+                        f"{res['chi2_as_fitted']:.1f}): reported there")
+                joint_resolution[effect_label(chosen[k])] = res
 
         # ---- final model, per-effect cumulative validation
         final_fit, slices = fit_model(cf, chosen, weights)
@@ -173,18 +208,48 @@ def run_repair(fit_paths, options: RepairOptions, validate_paths=None, out_dir=N
             coef = final_fit.theta[slices[k]]
             se = final_fit.se[slices[k]]
             params = e.parameters(coef)
-            step = next(s for s in sel.steps if s.label == effect_label(e))
+            step = next(s for s in sel.steps if s.label == step_label[effect_label(e)])
             effects_out.append({
                 "kind": e.kind, "joint": e.joint, "label": effect_label(e),
                 "parameters": _jsonable(params),
                 "coefficients": [float(c) for c in coef], "standard_errors": [float(s) for s in se],
                 "rms_validate_after": _rms(rv),
-                "heldout_gain": step.gain,
+                "heldout_gain": step.gain, "source": "residual",
                 "confidence": "high" if step.gain >= 0.25 and not R.analyse(fit, fk.residual)["unexplained_structure"]
                 else "moderate",
                 "plausibility": plausibility(e.kind, params, opts.robot),
             })
+            if effect_label(e) in joint_resolution:
+                effects_out[-1]["joint_resolution"] = joint_resolution[effect_label(e)]
         final_val_r = val.tau - predict_tau(cv, chosen, final_fit.theta)
+
+        # ---- against the nominal (URDF) model: effects inside the rigid-body span, torque_scale joint
+        nominal = None
+        if opts.nominal:
+            from robust_drake.identification import nominal as NM
+
+            nominal = NM.compare_with_nominal(cf, cv, regressor, final_fit, chosen, cands, weights,
+                                              sigma_rel=opts.sigma_rel)
+            named = nominal.pop("named")
+            log(f"nominal (URDF) model: parameter shift chi2 {nominal['chi2']:.1f} "
+                f"(99 % limit {nominal['chi2_limit']:.1f}), validate {np.round(nominal['rms_validate'], 4)}")
+            if named is not None:
+                e = named.pop("effect")
+                effects_out.append({
+                    "kind": named["kind"], "joint": named["joint"], "label": named["label"],
+                    "parameters": _jsonable(named["parameters"]), "coefficients": named["coefficients"],
+                    "standard_errors": [float("nan")] * len(named["coefficients"]),
+                    "rms_validate_after": named["rms_validate_after"],
+                    "rms_validate_before": nominal["rms_validate"],
+                    "heldout_gain": None, "source": "parameter_shift",
+                    "confidence": "moderate",
+                    "plausibility": plausibility(e.kind, named["parameters"], opts.robot)
+                    + " (inside the rigid-body span: named from the base-parameter shift against the URDF; "
+                      "errors are URDF-only vs URDF + this effect)",
+                })
+                nominal["named"] = named["label"]
+                log(f"named from the parameter shift: {named['label']} {named['parameters']}; URDF-model "
+                    f"validate {np.round(nominal['rms_validate'], 4)} -> {np.round(named['rms_validate_after'], 4)}")
         final_ana = R.analyse(fit, final_fit.residual)
         val_ana = R.analyse(val, final_val_r)
         unexplained = bool(final_ana["unexplained_structure"])
@@ -256,6 +321,7 @@ def run_repair(fit_paths, options: RepairOptions, validate_paths=None, out_dir=N
                   "parameters": final_fit.as_dict()["parameters"],
                   "standard_errors": final_fit.as_dict()["standard_errors"]},
         "unexplained_structure": unexplained,
+        "nominal": nominal,
         "unexplained_where": final_ana["where"],
         "replay": replay_out,
         "consistent": consistent,
@@ -364,8 +430,26 @@ def render_markdown(rep: dict) -> str:
         L.append("None: no candidate passed the stopping rule.")
     for e in rep["effects"]:
         ps = ", ".join(f"{k} = {v:.4g}" if isinstance(v, float) else f"{k} = {v}" for k, v in e["parameters"].items())
-        L.append(f"- **{e['kind']}** (joint {e['joint']}): {ps}; held-out error -{e['heldout_gain']:.1%}; "
+        L.append(f"- **{e['kind']}** (joint {e['joint']}): {ps}; {'held-out error -' + format(e['heldout_gain'], '.1%') if e.get('heldout_gain') is not None else 'named from the base-parameter shift against the URDF'}; "
                  f"confidence {e['confidence']}. Why plausible: {e['plausibility']}.")
+    nom = rep.get("nominal")
+    if nom:
+        L += ["", "## Against the URDF's parameters", "",
+              "Effects whose columns lie in the span of the rigid-body regressor (a tool payload, a rotor "
+              "inertia already inside a base parameter) are absorbed exactly by a free fit; they show up "
+              "only as a shift of the base parameters away from the URDF's. Shift chi^2 "
+              f"{nom['chi2']:.1f} over {nom['dof']} parameters (99 % limit {nom['chi2_limit']:.1f}; URDF "
+              f"trusted to {nom['sigma_rel']:.0%} of each parameter): "
+              + ("**not significant**." if not nom["significant"] else
+                 f"**explained by {nom['named']}**." if nom.get("named") else
+                 "**significant and not explained** by any in-span effect: the URDF's inertial "
+                 "parameters and the fitted ones disagree in a way no single payload or rotor inertia explains."),
+              "", f"URDF parameters with fitted friction/effects: validate "
+              + ", ".join(f"{x:.4f}" for x in nom["rms_validate"]) + " N m.", "",
+              "| in-span candidate | parameters | chi^2 after | decision |", "|---|---|---|---|"]
+        for c in nom["span_candidates"]:
+            ps = ", ".join(f"{k} = {v:.4g}" for k, v in c["parameters"].items())
+            L.append(f"| {c['label']} | {ps} | {c['chi2_after']:.1f} | {c['reason']} |")
     L += ["", "## Selection steps", "", "| step | best candidate | held-out score before -> after | BIC before -> after | decision |",
           "|---|---|---|---|---|"]
     for s in rep["selection"]["steps"]:

@@ -1,0 +1,186 @@
+"""The fitted model against the nominal (URDF) one: effects that live inside the rigid-body span.
+
+Some effects cannot show up in the residual of a free rigid-body fit, because their regressor
+columns are linear combinations of the rigid-body base columns: a payload fixed to the last link
+(it only changes that link's inertial parameters), and a reflected rotor inertia on a joint whose
+diagonal inertia is already a base parameter. A free fit absorbs them exactly; what is left is a
+*shift of the base parameters away from the URDF's*, theta_hat = theta0 + d c, where ``d`` solves
+Phi = Y_b d for the effect's columns Phi. This module reads that shift:
+
+1. which candidate effects are in the span (numerically: ||Phi - Y_b d|| <= SPAN_TOL ||Phi||);
+2. is the shift significant? chi^2 = Delta^T W Delta with Delta = theta_hat - theta0 and
+   W = diag(1 / (sigma_rel^2 s_k^2 + se_k^2)): the URDF is trusted to a relative
+   ``sigma_rel`` of each parameter's scale s_k (floored at FLOOR x the largest), the estimate to
+   its standard error;
+3. does one span effect explain it? c by weighted projection, chi^2 of the remainder; accepted if
+   the effect is physically admissible (``selection.implausible``) and the remainder is within
+   the 99 % chi^2 quantile (the shift is then "the URDF plus this effect");
+4. the named effect is then fitted the direct way: rigid-body part fixed at theta0, the effect's
+   coefficient and the friction/effect columns by least squares, and that model's validation
+   error is compared with the URDF-only model's (both with fitted friction).
+
+The same reference fixes the joint of a ``torque_scale`` effect, which a free fit cannot: on a
+2-joint arm gain (1+e) on joint j and 1/(1+e) on the other joint explain the same data with base
+parameters that differ by the factor (1+e) (``effects.equivalent_gain_error``); the variant whose
+rigid-body parameters are closer to the URDF's (same chi^2) is reported.
+
+This is the "prior / nominal model" that ``effects.Payload`` says the payload needs; it is a
+test against the nominal model, not a Bayesian fit: the least-squares estimate is not pulled
+towards the URDF.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import stats
+
+from robust_drake.identification.selection import effect_label, implausible, predict_tau
+
+#: relative trust in the URDF's base parameters (5 % of each parameter's scale)
+SIGMA_REL = 0.05
+#: parameter scale floor, as a fraction of the largest nominal base parameter
+FLOOR = 0.05
+#: relative projection residual below which an effect's columns count as in the rigid-body span
+SPAN_TOL = 1e-6
+#: chi^2 quantile used for "significant shift" and "remainder consistent with the URDF"
+QUANTILE = 0.99
+
+
+def shift_weights(theta0: np.ndarray, se: np.ndarray, sigma_rel: float = SIGMA_REL) -> np.ndarray:
+    """W_kk = 1 / (sigma_rel^2 s_k^2 + se_k^2), s_k = max(|theta0_k|, FLOOR max|theta0|)."""
+    theta0 = np.asarray(theta0, float)
+    s = np.maximum(np.abs(theta0), FLOOR * max(np.max(np.abs(theta0)), 1e-12))
+    se = np.where(np.isfinite(se), se, 0.0)
+    return 1.0 / ((sigma_rel * s) ** 2 + se**2)
+
+
+def span_direction(Yb: np.ndarray, Phi: np.ndarray) -> tuple[np.ndarray, float]:
+    """d with Phi ~= Yb d (stacked rows) and the relative residual ||Phi - Yb d|| / ||Phi||."""
+    A = Yb.reshape(-1, Yb.shape[-1])
+    B = Phi.reshape(-1, Phi.shape[-1])
+    d, *_ = np.linalg.lstsq(A, B, rcond=None)
+    nb = np.linalg.norm(B)
+    rel = float(np.linalg.norm(B - A @ d) / nb) if nb > 0 else np.inf
+    return d, rel
+
+
+def chi2(delta: np.ndarray, W: np.ndarray) -> float:
+    return float(np.sum(W * delta**2))
+
+
+def project_shift(delta: np.ndarray, d: np.ndarray, W: np.ndarray) -> tuple[np.ndarray, float]:
+    """Weighted LS coefficient c of delta ~ d c and the chi^2 of the remainder."""
+    DW = d * W[:, None]
+    c = np.linalg.lstsq(d.T @ DW, DW.T @ delta, rcond=None)[0]
+    return c, chi2(delta - d @ c, W)
+
+
+def fit_with_fixed_rigid(cache, effects, theta0: np.ndarray, weights) -> np.ndarray:
+    """Coefficients of ``cache.model(effects)`` with the rigid-body part fixed at theta0 and the
+    rest (friction, effect columns) fitted by weighted least squares."""
+    Y, _, _ = cache.model(effects)
+    p0 = len(theta0)
+    w = np.asarray(weights, float)
+    rhs = (cache.data.tau - Y[:, :, :p0] @ theta0) * w[None, :]
+    A = (Y[:, :, p0:] * w[None, :, None]).reshape(-1, Y.shape[2] - p0)
+    rest = np.linalg.lstsq(A, rhs.reshape(-1), rcond=None)[0]
+    return np.concatenate([theta0, rest])
+
+
+def _rms(r):
+    return [float(x) for x in np.sqrt(np.mean(np.asarray(r) ** 2, axis=0))]
+
+
+def compare_with_nominal(cf, cv, regressor, final_fit, chosen, candidates, weights,
+                         sigma_rel: float = SIGMA_REL) -> dict:
+    """The nominal-model analysis (module docstring). Returns a JSON-able dict:
+
+    ``{"sigma_rel", "chi2", "dof", "significant", "rms_validate": URDF-only model,
+    "span_candidates": [{label, kind, joint, parameters, chi2_after, accepted, reason}],
+    "named": effect entry or None, "unexplained_shift": bool}``; ``named`` carries ``kind``,
+    ``joint``, ``parameters``, ``rms_fit_after`` and ``rms_validate_after`` of URDF + effect.
+    """
+    theta0 = np.asarray(regressor.base_parameters(), float)
+    p0 = len(theta0)
+    delta = final_fit.theta[:p0] - theta0
+    W = shift_weights(theta0, final_fit.se[:p0], sigma_rel)
+    c2 = chi2(delta, W)
+    dof = p0
+    limit = float(stats.chi2.ppf(QUANTILE, dof))
+    significant = bool(c2 > limit)
+
+    theta_nom = fit_with_fixed_rigid(cf, chosen, theta0, weights)
+    rv_nom = cv.data.tau - predict_tau(cv, chosen, theta_nom)
+    out = {"sigma_rel": sigma_rel, "chi2": c2, "dof": dof, "chi2_limit": limit,
+           "significant": significant, "rms_fit": _rms(cf.data.tau - predict_tau(cf, chosen, theta_nom)),
+           "rms_validate": _rms(rv_nom), "span_candidates": [], "named": None,
+           "unexplained_shift": False}
+    Yb = cf.base[:, :, :p0]
+    chosen_kinds = {(e.kind, e.joint) for e in chosen}
+    best = None
+    for e in candidates:
+        if (e.kind, e.joint) in chosen_kinds:
+            continue
+        try:
+            Phi, _ = cf.effect(e)
+        except Exception:  # noqa: BLE001 - an effect that cannot build columns on these data
+            continue
+        d, rel = span_direction(Yb, Phi)
+        if rel > SPAN_TOL:
+            continue
+        c, c2_after = project_shift(delta, d, W)
+        why = implausible(e, c)
+        limit_after = float(stats.chi2.ppf(QUANTILE, max(dof - len(c), 1)))
+        ok = significant and not why and c2_after <= limit_after
+        reason = ("shift not significant" if not significant else why if why else
+                  f"remainder chi2 {c2_after:.1f} > {limit_after:.1f}" if c2_after > limit_after else
+                  f"explains the shift: chi2 {c2:.1f} -> {c2_after:.1f}")
+        entry = {"label": effect_label(e), "kind": e.kind, "joint": e.joint,
+                 "parameters": {k: float(v) for k, v in e.parameters(c).items()
+                                if isinstance(v, (int, float, np.floating))},
+                 "chi2_after": c2_after, "accepted": ok, "reason": reason}
+        out["span_candidates"].append(entry)
+        if ok and (best is None or c2_after < best[1]):
+            best = (e, c2_after)
+    out["span_candidates"].sort(key=lambda x: x["chi2_after"])
+    if best is not None:
+        e = best[0]
+        th = fit_with_fixed_rigid(cf, chosen + [e], theta0, weights)
+        _, _, slices = cf.model(chosen + [e])
+        coef = th[slices[-1]]
+        params = {k: float(v) for k, v in e.parameters(coef).items() if isinstance(v, (int, float, np.floating))}
+        out["named"] = {
+            "kind": e.kind, "joint": e.joint, "label": effect_label(e), "parameters": params,
+            "coefficients": [float(x) for x in coef],
+            "rms_fit_after": _rms(cf.data.tau - predict_tau(cf, chosen + [e], th)),
+            "rms_validate_after": _rms(cv.data.tau - predict_tau(cv, chosen + [e], th)),
+            "effect": e,
+        }
+    else:
+        out["unexplained_shift"] = significant
+    return out
+
+
+def resolve_torque_scale(theta_rigid: np.ndarray, se_rigid: np.ndarray, theta0: np.ndarray, joint: int,
+                         gain_error: float, n: int, sigma_rel: float = SIGMA_REL) -> dict:
+    """Pick the joint of a torque_scale effect against the URDF (module docstring).
+
+    Returns ``{"joint", "gain_error", "swapped", "chi2_as_fitted", "chi2_swapped"}``; only 2-joint
+    arms have the single-equivalent ambiguity, other arms return the fitted variant."""
+    W = shift_weights(theta0, se_rigid, sigma_rel)
+    c_fit = chi2(np.asarray(theta_rigid) - theta0, W)
+    if n != 2:
+        return {"joint": joint, "gain_error": gain_error, "swapped": False,
+                "chi2_as_fitted": c_fit, "chi2_swapped": None}
+    from robust_drake.identification.effects import equivalent_gain_error
+
+    alt = np.asarray(theta_rigid) / (1.0 + gain_error)
+    c_alt = chi2(alt - theta0, W)
+    swap = c_alt < c_fit
+    return {"joint": (1 - joint) if swap else joint,
+            "gain_error": equivalent_gain_error(gain_error) if swap else gain_error,
+            "swapped": bool(swap), "chi2_as_fitted": c_fit, "chi2_swapped": c_alt}
+
+
+__all__ = ["compare_with_nominal", "resolve_torque_scale", "span_direction", "shift_weights",
+           "fit_with_fixed_rigid", "SIGMA_REL"]
