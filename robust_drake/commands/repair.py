@@ -38,6 +38,8 @@ def register(subparsers) -> None:
     p.add_argument("--max-effects", type=int, default=4)
     p.add_argument("--no-consistent", action="store_true",
                    help="skip the physically consistent (pseudo-inertia LMI) estimate")
+    p.add_argument("--no-instruments", action="store_true",
+                   help="skip the errors-in-variables test (least squares vs instrumental variables)")
     p.add_argument("--no-nominal", action="store_true",
                    help="skip the comparison with the URDF's parameters (effects inside the rigid-body "
                         "span, e.g. payload, and the joint of a torque_scale error)")
@@ -69,7 +71,7 @@ def run(args) -> int:
         cutoff_hz=DEFAULT_CUTOFF_HZ if args.cutoff is None else args.cutoff,
         kinds=kinds, min_gain=MIN_GAIN if args.min_gain is None else args.min_gain,
         max_effects=args.max_effects, consistent=not args.no_consistent, replay=not args.no_replay,
-        plots=not args.no_plots, nominal=not args.no_nominal,
+        plots=not args.no_plots, nominal=not args.no_nominal, instruments=not args.no_instruments,
     )
     if args.sigma_rel is not None:
         if not args.sigma_rel > 0:
@@ -91,6 +93,10 @@ def run(args) -> int:
     print(f"unexplained_structure: {str(rep['unexplained_structure']).lower()}"
           + (f" ({', '.join(w['variable'] + ' on joint ' + str(w['joint']) for w in rep['unexplained_where'])})"
              if rep["unexplained_structure"] else ""))
+    est = rep.get("estimator") or {}
+    if est.get("hausman"):
+        print(f"estimator: {est['method']} (Hausman {est['hausman']['statistic']:.1f}, "
+              f"1 % limit {est['hausman']['limit']:.1f})")
     nom = rep.get("nominal")
     if nom:
         print(f"URDF parameters: shift chi2 {nom['chi2']:.1f} (99 % limit {nom['chi2_limit']:.1f}), "

@@ -1,0 +1,110 @@
+"""Errors in variables: a regressor that carries what the torque does not biases least squares.
+
+The regressor is built from *measured* positions differentiated twice (zero-phase low-pass at
+``f_c``, then central differences). Whatever in those columns the torque does not cause (the
+differentiated encoder noise; motion on the encoder's side of a gear that the link does not make,
+e.g. through backlash at reversals) acts as an error in the variables, and least squares on such
+columns is biased towards smaller parameters ("attenuation"). When the error sits at high
+frequency the bias grows with the cut-off. It is worst on rows where large inertial and gravity
+torques cancel, e.g. a joint left unpowered (torque ~ 0) that swings by reaction, or motion near
+a resonance.
+
+Remedy (the instrumental-variable idea of IDIM-IV, Gautier, Janot & Vandanjon, IEEE TCST 2013,
+with a simpler instrument): instruments Z = the same columns built from the same files
+low-passed at ``ratio x f_c`` (default 0.5). Z is strongly correlated with the error-free
+regressor and uncorrelated with the error *above* ``ratio x f_c``, so theta_IV =
+(Z^T W Y)^-1 Z^T W tau is free of that part of the bias; error inside the instrument band is not
+removed (tests/test_instruments.py shows both). Decision: a Durbin-Wu-Hausman test of theta_IV
+against theta_LS (covariances inflated by N / N_eff for the filtered, correlated rows); IV is used
+only when the difference is significant at 1 %. The IV estimate predicts the *fit* data's torque
+a little worse (LS is the best equation-error predictor given the same noisy columns) but the
+physics better, which is what a different experiment and a replay of the motion see.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import stats
+
+from robust_drake.identification.least_squares import LSResult, RANK_TOL, identifiability
+
+#: instrument cut-off as a fraction of the data cut-off
+INSTRUMENT_RATIO = 0.5
+#: significance of the Hausman test
+ALPHA = 0.01
+
+
+def solve_iv(Y: np.ndarray, Z: np.ndarray, tau: np.ndarray, names: list[str], weights=None,
+             n_eff_factor: float = 1.0) -> LSResult:
+    """Instrumental-variable estimate ``(Z^T W Y)^-1 Z^T W tau`` (rows of joint j weighted w_j).
+
+    ``Y``, ``Z``: (N, n, p) regressor and instruments on the same rows. Standard errors from
+    ``sigma^2 (Z^T Y)^-1 Z^T Z (Y^T Z)^-1``, inflated by ``1 / n_eff_factor`` (N_eff / N of
+    filtered data). The residual is the equation error ``tau - Y theta``."""
+    Y, Z, tau = (np.asarray(a, float) for a in (Y, Z, tau))
+    if Y.shape != Z.shape:
+        raise ValueError(f"regressor {Y.shape} and instruments {Z.shape} differ")
+    N, n, p = Y.shape
+    w = np.ones(n) if weights is None else np.asarray(weights, float)
+    Yw = (Y * w[None, :, None]).reshape(-1, p)
+    Zw = (Z * w[None, :, None]).reshape(-1, p)
+    bw = (tau * w[None, :]).reshape(-1)
+    d = np.sqrt(np.maximum(np.einsum("ij,ij->j", Yw, Yw), 1e-300))  # column scaling
+    ZY = (Zw / d).T @ (Yw / d)
+    theta = np.linalg.solve(ZY, (Zw / d).T @ bw) / d
+    resid = tau - Y @ theta
+    r_w = resid * w[None, :]
+    rss = float(np.sum(r_w**2))
+    cond, rank, unident, _ = identifiability(None, names, RANK_TOL, G=Yw.T @ Yw)
+    sigma2 = rss / max(N * n - p, 1)
+    ZYi = np.linalg.inv(ZY)
+    cov = sigma2 * ZYi @ ((Zw / d).T @ (Zw / d)) @ ZYi.T / np.outer(d, d) / max(n_eff_factor, 1e-12)
+    se = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    rms = np.sqrt(np.mean(resid**2, axis=0))
+    res = LSResult(theta=theta, names=list(names), se=se, sigma=rms, weights=w, cond=cond, rank=rank,
+                   unidentifiable=unident, residual=resid, rms=rms, N=N, rss_weighted=rss)
+    res.cov = cov
+    return res
+
+
+def ls_covariance(Y: np.ndarray, tau: np.ndarray, theta: np.ndarray, weights, n_eff_factor: float = 1.0):
+    """sigma^2 (Y^T W Y)^-1 for a least-squares estimate, inflated by 1 / n_eff_factor."""
+    N, n, p = Y.shape
+    w = np.asarray(weights, float)
+    Yw = (Y * w[None, :, None]).reshape(-1, p)
+    r = ((tau - Y @ theta) * w[None, :]).reshape(-1)
+    sigma2 = float(r @ r) / max(N * n - p, 1)
+    return sigma2 * np.linalg.pinv(Yw.T @ Yw) / max(n_eff_factor, 1e-12)
+
+
+def hausman(theta_ls, cov_ls, theta_iv, cov_iv, alpha: float = ALPHA) -> dict:
+    """Durbin-Wu-Hausman statistic H = d^T (V_IV - V_LS)^+ d, d = theta_IV - theta_LS, on the
+    positive part of V_IV - V_LS (dof = its rank). ``significant``: H > chi2 quantile 1 - alpha."""
+    dlt = np.asarray(theta_iv, float) - np.asarray(theta_ls, float)
+    D = np.asarray(cov_iv, float) - np.asarray(cov_ls, float)
+    D = 0.5 * (D + D.T)
+    lam, V = np.linalg.eigh(D)
+    keep = lam > 1e-9 * max(lam.max(), 1e-300)
+    proj = V[:, keep].T @ dlt
+    H = float(np.sum(proj**2 / lam[keep]))
+    dof = int(keep.sum())
+    limit = float(stats.chi2.ppf(1 - alpha, max(dof, 1)))
+    return {"statistic": H, "dof": dof, "limit": limit, "alpha": alpha, "significant": bool(H > limit)}
+
+
+def fit_model_iv(cache, icache, effects, weights, n_eff_factor: float = 1.0):
+    """IV counterpart of ``selection.fit_model``: columns from ``cache``, instruments from
+    ``icache`` (same rows, lower cut-off). ``residual``/``rms`` are output errors."""
+    from robust_drake.identification.selection import predict_tau
+
+    Y, names, slices = cache.model(effects)
+    Z, _, _ = icache.model(effects)
+    if Y.shape != Z.shape:
+        raise ValueError(f"instrument rows {Z.shape} do not match the data {Y.shape}")
+    res = solve_iv(Y, Z, cache.data.tau, names, weights, n_eff_factor)
+    res.residual = cache.data.tau - predict_tau(cache, effects, res.theta)
+    res.rms = np.sqrt(np.mean(res.residual**2, axis=0))
+    return res, slices
+
+
+__all__ = ["solve_iv", "hausman", "ls_covariance", "fit_model_iv", "INSTRUMENT_RATIO"]
