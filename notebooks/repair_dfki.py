@@ -20,7 +20,8 @@
 # 2. fit the baseline: Drake-derived base parameters of the URDF + Coulomb + viscous friction;
 # 3. look at the residual against the state, time, frequency and velocity reversals;
 # 4. let forward selection try every effect of the library on held-out error;
-# 5. compare the validation error (closed-loop swing-ups) before and after.
+# 5. test the estimator itself for errors in variables (least squares vs instrumental variables);
+# 6. compare the validation error (closed-loop swing-ups) and the replayed motion before and after.
 #
 # Without the shared data folder the notebook runs the same loop on the built-in simulated
 # experiment (an arm with a hidden Stribeck effect).
@@ -51,23 +52,23 @@ print("DFKI data found" if HAVE_DATA else "no shared data: using the simulated e
 
 # %% [markdown]
 # ## 1-2. Data and the baseline fit
-# Fit: the open-loop runs. Validation: the two swing-ups. Commanded torque (`tau_con`), 6 Hz
-# cut-off (see BUILD_NOTES.md, "Identification and repair", for why).
+# Fit: the open-loop runs. Validation: the two swing-ups. The command's defaults: the driver's
+# torque estimate (`tau_meas`) and an 8 Hz cut-off.
 
 # %%
 if HAVE_DATA:
     robot = "dfki_double_pendulum_c1"
     fit_files = sorted(glob.glob(os.path.join(C1, "20230629-143*.csv")))
     val_files = sorted(glob.glob(os.path.join(C1, "20230629-154*.csv")))
-    torque = "tau_con"
+    torque = "tau_meas"
 else:
     from robust_drake.identification.simulated import hidden_effect_case
 
     f, v, truth = hidden_effect_case("stribeck", out_dir=OUT)
     robot, fit_files, val_files, torque = truth["robot"], [f], [v], "tau_meas"
 
-fit = load(fit_files, robot=robot, torque=torque, cutoff_hz=6.0)
-val = load(val_files, robot=robot, torque=torque, cutoff_hz=6.0)
+fit = load(fit_files, robot=robot, torque=torque, cutoff_hz=8.0)
+val = load(val_files, robot=robot, torque=torque, cutoff_hz=8.0)
 reg = load_regressor(robot)
 print(reg)
 cf, cv = ColumnCache(fit, reg), ColumnCache(val, reg)
@@ -92,11 +93,39 @@ ana = R.analyse(fit, base.residual)
 print("unexplained structure:", ana["unexplained_structure"], ana["where"][:3])
 
 # %% [markdown]
-# ## 4-5. Selection and before/after
+# ## The estimator: do the parameters depend on the cut-off?
+# If the regressor columns carried only what the torque causes, the least-squares parameters
+# would not care how much high-frequency content the filter lets through. On C.1 they shrink as
+# the cut-off rises (attenuation: errors in the variables), while instrumental variables (the
+# same columns low-passed at half the cut-off as instruments) move much less.
+
+# %%
+from robust_drake.identification.instruments import fit_model_iv  # noqa: E402
+
+cutoffs = [4.0, 8.0] if SHORT else [3.0, 4.0, 6.0, 8.0, 10.0, 12.0]
+k_mx = list(reg.base_names).index("mx_link2")  # link 2's first moment [kg m]
+ls_p, iv_p = [], []
+for fc in cutoffs:
+    d = load(fit_files, robot=robot, torque=torque, cutoff_hz=fc)
+    z = load(fit_files, robot=robot, torque=torque, cutoff_hz=fc / 2, trim_s=d.filter.trim_samples * d.dt)
+    c, cz = ColumnCache(d, reg), ColumnCache(z, reg)
+    ls_p.append(fit_model(c, [], np.ones(2))[0].theta[k_mx])
+    iv_p.append(fit_model_iv(c, cz, [], np.ones(2))[0].theta[k_mx])
+plt.figure(figsize=(5, 3))
+plt.plot(cutoffs, ls_p, "o-", label="least squares")
+plt.plot(cutoffs, iv_p, "s-", label="instrumental variables")
+plt.axhline(reg.base_parameters()[k_mx], color="k", ls=":", label="URDF")
+plt.xlabel("cut-off [Hz]")
+plt.ylabel(reg.base_names[k_mx])
+plt.legend()
+plt.tight_layout()
+
+# %% [markdown]
+# ## 4-6. Selection, estimator and before/after
 # The whole loop in one call (the same function the command line uses).
 
 # %%
-opts = RepairOptions(robot=robot, torque=torque, cutoff_hz=6.0, replay=not SHORT, plots=True)
+opts = RepairOptions(robot=robot, torque=torque, cutoff_hz=8.0, replay=not SHORT, plots=True)
 rep = run_repair(fit_files, opts, validate_paths=val_files, out_dir=OUT, progress=print)
 for s in rep["selection"]["steps"]:
     print(f"step {s['step']}: {s['label']:<45s} {s['reason']}")
@@ -104,6 +133,10 @@ print("validation RMS before", np.round(rep["baseline"]["rms_validate"], 4),
       "after", np.round(rep["final"]["rms_validate"], 4))
 for e in rep["effects"]:
     print(e["kind"], e["joint"], e["parameters"], "--", e["plausibility"])
+print("estimator:", rep["estimator"]["method"], "Hausman", rep["estimator"].get("hausman"))
+if rep["replay"]["after"]:
+    print("replay RMS q error before", np.round(rep["replay"]["before"]["rms_q"], 4),
+          "after", np.round(rep["replay"]["after"]["rms_q"], 4))
 
 # %%
 fig, ax = plt.subplots(1, 2, figsize=(10, 3))
