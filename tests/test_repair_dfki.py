@@ -74,6 +74,8 @@ def test_c1_regressor_noise_is_detected_and_removed(c1_report):
     est = rep["estimator"]
     assert est["method"] == "instrumental_variables"
     assert est["hausman"]["statistic"] > 5 * est["hausman"]["limit"]
+    # and the output-error check on the fit data agrees: IV replays the open-loop runs better
+    assert est["replay_fit"]["ratio"] < 0.95
     ls, iv = rep["baseline"]["parameters"], rep["final"]["parameters"]
     for name in ("mx_link1 + 0.2*m_link2", "mx_link2"):
         assert iv[name] > 1.05 * ls[name], (name, ls[name], iv[name])
