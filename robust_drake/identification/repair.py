@@ -172,6 +172,7 @@ def run_repair(fit_paths, options: RepairOptions, validate_paths=None, out_dir=N
         sel = forward_select(cf, cands, min_gain=opts.min_gain, max_effects=opts.max_effects, progress=log,
                              weights=weights)
         chosen = list(sel.chosen)
+        steps, ranking = list(sel.steps), sel.ranking
 
         def refit_weights(effects):
             # second WLS step: per-joint weights from the chosen model's own residual (the
@@ -255,6 +256,21 @@ def run_repair(fit_paths, options: RepairOptions, validate_paths=None, out_dir=N
                 f"{test['dof']} dof) -> {estimator['method']} (instruments low-passed at {fz:g} Hz)")
             if estimator["method"] == "instrumental_variables":
                 fitter = lambda c, effects, w: IV.fit_model_iv(c, cz, effects, w, nf)  # noqa: E731
+                if len(chosen) < opts.max_effects:
+                    # the search goes on under the IV estimator: an effect whose signal the
+                    # attenuated LS fit had smeared into the rigid-body parameters can now pass
+                    log("selection continues with the IV estimator")
+                    sel2 = forward_select(cf, cands, min_gain=opts.min_gain, max_effects=opts.max_effects,
+                                          progress=lambda m: log(f"[IV] {m}"), weights=weights,
+                                          initial=chosen, icache=cz)
+                    for st in sel2.steps:
+                        st.step = len(steps) + 1
+                        st.reason = f"[IV] {st.reason}"
+                        steps.append(st)
+                    for e in sel2.chosen[len(chosen):]:
+                        step_label[effect_label(e)] = effect_label(e)
+                    chosen = list(sel2.chosen)
+                    ranking = sel2.ranking
 
         # ---- final model, per-effect cumulative validation
         final_fit, slices = fitter(cf, chosen, weights)
@@ -265,7 +281,7 @@ def run_repair(fit_paths, options: RepairOptions, validate_paths=None, out_dir=N
             coef = final_fit.theta[slices[k]]
             se = final_fit.se[slices[k]]
             params = e.parameters(coef)
-            step = next(s for s in sel.steps if s.label == step_label[effect_label(e)])
+            step = next(s for s in steps if s.accepted and s.label == step_label[effect_label(e)])
             effects_out.append({
                 "kind": e.kind, "joint": e.joint, "label": effect_label(e),
                 "parameters": _jsonable(params),
@@ -367,8 +383,8 @@ def run_repair(fit_paths, options: RepairOptions, validate_paths=None, out_dir=N
         "consistent": consistent,
         "identifiability": {"condition_number": base_fit.cond, "rank": base_fit.rank,
                             "unidentifiable": base_fit.unidentifiable},
-        "selection": {"steps": [s.as_dict() for s in sel.steps], "min_gain": opts.min_gain,
-                      "candidates": len(cands), "last_ranking": sel.ranking[:12],
+        "selection": {"steps": [s.as_dict() for s in steps], "min_gain": opts.min_gain,
+                      "candidates": len(cands), "last_ranking": ranking[:12],
                       "rule": "blocked 4-fold held-out error, gain >= min_gain and BIC (N_eff) decreasing"},
         "residual": {"baseline": base_ana, "final": final_ana, "final_validate": val_ana},
         "data": {"fit": fit.summary(), "validate": val.summary(),

@@ -165,22 +165,29 @@ def predict_tau(cache: "ColumnCache", effects, theta, rows=None, iterations: int
     return tau_hat
 
 
-def cv_score(cache: "ColumnCache", effects, weights, folds) -> float:
-    """Mean held-out weighted squared output error over blocked folds (Gram matrices per fold)."""
+def cv_score(cache: "ColumnCache", effects, weights, folds, icache=None) -> float:
+    """Mean held-out weighted squared output error over blocked folds (Gram matrices per fold).
+
+    With ``icache`` (instrument columns on the same rows, ``instruments.py``) every fold is fitted
+    by instrumental variables, (Z^T W Y)^-1 Z^T W tau, instead of least squares."""
     from robust_drake.identification.least_squares import solve_gram
 
     Y, _, _ = cache.model(effects)
     tau = cache.data.tau
     Yw = Y * weights[None, :, None]
     bw = tau * weights[None, :]
+    Zw = Yw if icache is None else icache.model(effects)[0] * weights[None, :, None]
     Gs, gs = [], []
     for test in folds:
-        Gs.append(np.einsum("nip,niq->pq", Yw[test], Yw[test], optimize=True))
-        gs.append(np.einsum("nip,ni->p", Yw[test], bw[test], optimize=True))
+        Gs.append(np.einsum("nip,niq->pq", Zw[test], Yw[test], optimize=True))
+        gs.append(np.einsum("nip,ni->p", Zw[test], bw[test], optimize=True))
     G_all, g_all = sum(Gs), sum(gs)
     total, count = 0.0, 0
     for test, Gf, gf in zip(folds, Gs, gs):
-        theta = solve_gram(G_all - Gf, g_all - gf, tol=1e-10)[0]
+        if icache is None:
+            theta = solve_gram(G_all - Gf, g_all - gf, tol=1e-10)[0]
+        else:
+            theta = np.linalg.lstsq(G_all - Gf, g_all - gf, rcond=None)[0]
         r = (tau[test] - predict_tau(cache, effects, theta, test)) * weights[None, :]
         total += float(np.sum(r**2))
         count += r.size
@@ -231,10 +238,16 @@ class SelectionResult:
 
 
 def forward_select(cache: ColumnCache, candidates: list, min_gain: float = MIN_GAIN,
-                   max_effects: int = 4, folds: int = CV_FOLDS, progress=None, weights=None) -> SelectionResult:
+                   max_effects: int = 4, folds: int = CV_FOLDS, progress=None, weights=None,
+                   initial=(), icache=None) -> SelectionResult:
     """Greedy forward selection (see module docstring). ``progress(msg)`` is called per step.
 
-    ``weights`` (n,): per-joint row weights (default 1 / baseline residual RMS of each joint)."""
+    ``weights`` (n,): per-joint row weights (default 1 / baseline residual RMS of each joint).
+    ``initial``: effects already in the model (the search continues from them; scores stay
+    relative to the model without them). ``icache``: instrument columns; every fit, held-out
+    score and BIC then uses instrumental variables (``instruments.py``)."""
+    from robust_drake.identification.instruments import solve_iv
+
     data = cache.data
     tau = data.tau
     if weights is None:
@@ -248,18 +261,25 @@ def forward_select(cache: ColumnCache, candidates: list, min_gain: float = MIN_G
 
     def evaluate(effects):
         Y, names, slices = cache.model(effects)
-        fit = solve_ls(Y, tau, names, weights=weights, warn=False)
+        if icache is None:
+            fit = solve_ls(Y, tau, names, weights=weights, warn=False)
+        else:
+            fit = solve_iv(Y, icache.model(effects)[0], tau, names, weights)
         for e, sl in zip(effects, slices):
             why = implausible(e, fit.theta[sl])
             if why:  # checked before the (costlier) cross validation
                 return np.inf, np.inf, fit, names, slices, why
-        score = cv_score(cache, effects, weights, fmask)
+        score = cv_score(cache, effects, weights, fmask, icache)
         r = (tau - predict_tau(cache, effects, fit.theta)) * weights[None, :]
         return score, bic(float(np.sum(r**2)), rows, fit.rank, n_eff_rows), fit, names, slices, ""
 
-    score, b, _, _, _, _ = evaluate([])
-    baseline_score = score
-    chosen, steps, pool = [], [], list(candidates)
+    base_eval = evaluate([])
+    baseline_score = base_eval[0]
+    chosen = list(initial)
+    score, b = (evaluate(chosen) if chosen else base_eval)[:2]
+    steps = []
+    taken = {(e.kind, e.joint) for e in chosen}
+    pool = [e for e in candidates if (e.kind, e.joint) not in taken]
     ranking = []
     while pool and len(chosen) < max_effects:
         trials = []
