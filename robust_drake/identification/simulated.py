@@ -332,6 +332,7 @@ def hidden_effect_case(kind, seed=0, out_dir=None, duration=12.0, rate_hz=250.0,
     """
     import tempfile
     out_dir = out_dir or tempfile.mkdtemp(prefix=f"hidden_{kind}_")
+    os.makedirs(out_dir, exist_ok=True)
     robot = kw.pop("robot", DEFAULT_ROBOT)
     # Small baseline Coulomb friction: with larger levels the joints stick for a moment at
     # every reversal (friction = whatever holds the joint), which a sign(qd) Coulomb column
