@@ -209,51 +209,12 @@ def run_repair(fit_paths, options: RepairOptions, validate_paths=None, out_dir=N
 
         # ---- errors in variables: LS vs instrumental variables (instruments.py), Hausman test
         fitter = fit_model
-        estimator = {"method": "least_squares"}
+        estimator, cz, nf = {"method": "least_squares"}, None, 1.0
         if opts.instruments and fit.filter.cutoff_hz and fit.filter.derivatives != "given":
             from robust_drake.identification import instruments as IV
-            from robust_drake.identification.selection import n_effective
 
-            fz = fit.filter.cutoff_hz * IV.INSTRUMENT_RATIO
-            zdata = load(fit_paths, robot=opts.robot, n_joints=data.n, torque=opts.torque, cutoff_hz=fz,
-                         trim_s=data.filter.trim_samples * data.dt)
-            if not validate_paths:
-                zdata = zdata.subset(~tail_mask(zdata))
-            cz = ColumnCache(zdata, regressor)
-            nf = n_effective(fit) / fit.N
-            ls_k, _ = fit_model(cf, chosen, weights)
-            iv_k, _ = IV.fit_model_iv(cf, cz, chosen, weights, nf)
-            Yk, _, _ = cf.model(chosen)
-            test = IV.hausman(ls_k.theta, IV.ls_covariance(Yk, fit.tau, ls_k.theta, weights, nf),
-                              iv_k.theta, iv_k.cov)
-            iv_base, _ = IV.fit_model_iv(cf, cz, [], weights, nf)
-            estimator = {
-                "method": "instrumental_variables" if test["significant"] else "least_squares",
-                "rule": "Hausman test significant at 1 % and, with consistent fit + replay on, the IV "
-                        "model replays the fit data's motion better (mean per-joint RMS q ratio < 1)",
-                "instrument_cutoff_hz": fz, "hausman": test,
-                "baseline_iv": {"rms_fit": _rms(iv_base.residual),
-                                "rms_validate": _rms(val.tau - predict_tau(cv, [], iv_base.theta))},
-            }
-            if test["significant"] and opts.consistent and opts.replay:
-                # output error decides too: LS is the best *equation-error* predictor given the
-                # noisy columns, so judge both estimates by replaying the fit data's motion
-                try:
-                    r_ls = _replay_model(opts, cf, fit, ls_k, chosen,
-                                         _consistent_fit(regressor, opts.robot, cf, chosen, weights))
-                    r_iv = _replay_model(opts, cf, fit, iv_k, chosen,
-                                         _consistent_fit(regressor, opts.robot, cf, chosen, weights, cz))
-                    ratio = float(np.mean(np.asarray(r_iv["rms_q"]) / np.maximum(r_ls["rms_q"], 1e-12)))
-                    estimator["replay_fit"] = {"least_squares": r_ls["rms_q"],
-                                               "instrumental_variables": r_iv["rms_q"], "ratio": ratio}
-                    if not ratio < 1.0:
-                        estimator["method"] = "least_squares"
-                    log(f"replay of the fit data, RMS q: LS {np.round(r_ls['rms_q'], 4)}, "
-                        f"IV {np.round(r_iv['rms_q'], 4)} (mean ratio {ratio:.2f})")
-                except RobustDrakeError as exc:
-                    notes.append(f"estimator replay check failed ({exc}); Hausman test alone decides")
-            log(f"errors in variables: Hausman {test['statistic']:.1f} (1 % limit {test['limit']:.1f}, "
-                f"{test['dof']} dof) -> {estimator['method']} (instruments low-passed at {fz:g} Hz)")
+            estimator, cz, nf = _choose_estimator(opts, fit_paths, bool(validate_paths), data, fit, val, cf, cv,
+                                                  regressor, chosen, weights, log, notes)
             if estimator["method"] == "instrumental_variables":
                 fitter = lambda c, effects, w: IV.fit_model_iv(c, cz, effects, w, nf)  # noqa: E731
                 if len(chosen) < opts.max_effects:
@@ -350,8 +311,6 @@ def run_repair(fit_paths, options: RepairOptions, validate_paths=None, out_dir=N
         # ---- replay through the Drake plant
         replay_out = {"before": None, "after": None}
         if opts.replay:
-            from robust_drake.identification.replay import replay
-
             def rp(fitres, effects, cons):
                 return _replay_model(opts, cf, val, fitres, effects, cons)
 
@@ -401,6 +360,56 @@ def run_repair(fit_paths, options: RepairOptions, validate_paths=None, out_dir=N
         with open(os.path.join(out_dir, "report.md"), "w") as fh:
             fh.write(render_markdown(report))
     return report
+
+
+def _choose_estimator(opts, fit_paths, have_validation, data, fit, val, cf, cv, regressor, chosen, weights,
+                      log, notes):
+    """LS or IV for the model ``chosen`` (instruments.py): Hausman test, then (with the consistent
+    fit and the replay on) the output-error check on the fit data. Returns (estimator report,
+    instrument ColumnCache, N_eff / N)."""
+    from robust_drake.identification import instruments as IV
+    from robust_drake.identification.selection import n_effective
+
+    fz = fit.filter.cutoff_hz * IV.INSTRUMENT_RATIO
+    zdata = load(fit_paths, robot=opts.robot, n_joints=data.n, torque=opts.torque, cutoff_hz=fz,
+                 trim_s=data.filter.trim_samples * data.dt)
+    if not have_validation:
+        zdata = zdata.subset(~tail_mask(zdata))
+    cz = ColumnCache(zdata, regressor)
+    nf = n_effective(fit) / fit.N
+    ls_k, _ = fit_model(cf, chosen, weights)
+    iv_k, _ = IV.fit_model_iv(cf, cz, chosen, weights, nf)
+    Yk, _, _ = cf.model(chosen)
+    test = IV.hausman(ls_k.theta, IV.ls_covariance(Yk, fit.tau, ls_k.theta, weights, nf), iv_k.theta, iv_k.cov)
+    iv_base, _ = IV.fit_model_iv(cf, cz, [], weights, nf)
+    estimator = {
+        "method": "instrumental_variables" if test["significant"] else "least_squares",
+        "rule": "Hausman test significant at 1 % and, with consistent fit + replay on, the IV "
+                "model replays the fit data's motion better (mean per-joint RMS q ratio < 1)",
+        "instrument_cutoff_hz": fz, "hausman": test,
+        "baseline_iv": {"rms_fit": _rms(iv_base.residual),
+                        "rms_validate": _rms(val.tau - predict_tau(cv, [], iv_base.theta))},
+    }
+    if test["significant"] and opts.consistent and opts.replay:
+        # output error decides too: LS is the best *equation-error* predictor given the noisy
+        # columns, so judge both estimates by replaying the fit data's motion
+        try:
+            r_ls = _replay_model(opts, cf, fit, ls_k, chosen,
+                                 _consistent_fit(regressor, opts.robot, cf, chosen, weights))
+            r_iv = _replay_model(opts, cf, fit, iv_k, chosen,
+                                 _consistent_fit(regressor, opts.robot, cf, chosen, weights, cz))
+            ratio = float(np.mean(np.asarray(r_iv["rms_q"]) / np.maximum(r_ls["rms_q"], 1e-12)))
+            estimator["replay_fit"] = {"least_squares": r_ls["rms_q"], "instrumental_variables": r_iv["rms_q"],
+                                       "ratio": ratio}
+            if not ratio < 1.0:
+                estimator["method"] = "least_squares"
+            log(f"replay of the fit data, RMS q: LS {np.round(r_ls['rms_q'], 4)}, "
+                f"IV {np.round(r_iv['rms_q'], 4)} (mean ratio {ratio:.2f})")
+        except RobustDrakeError as exc:
+            notes.append(f"estimator replay check failed ({exc}); Hausman test alone decides")
+    log(f"errors in variables: Hausman {test['statistic']:.1f} (1 % limit {test['limit']:.1f}, "
+        f"{test['dof']} dof) -> {estimator['method']} (instruments low-passed at {fz:g} Hz)")
+    return estimator, cz, nf
 
 
 def _consistent_fit(regressor, robot, cf, effects, weights, cz=None):
