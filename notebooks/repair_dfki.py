@@ -100,25 +100,14 @@ print("unexplained structure:", ana["unexplained_structure"], ana["where"][:3])
 # same columns low-passed at half the cut-off as instruments) move much less.
 
 # %%
-from robust_drake.identification.instruments import fit_model_iv  # noqa: E402
+from robust_drake.identification.instruments import cutoff_sweep, plot_cutoff_sweep  # noqa: E402
 
 cutoffs = [4.0, 8.0] if SHORT else [3.0, 4.0, 6.0, 8.0, 10.0, 12.0]
-k_mx = list(reg.base_names).index("mx_link2")  # link 2's first moment [kg m]
-ls_p, iv_p = [], []
-for fc in cutoffs:
-    d = load(fit_files, robot=robot, torque=torque, cutoff_hz=fc)
-    z = load(fit_files, robot=robot, torque=torque, cutoff_hz=fc / 2, trim_s=d.filter.trim_samples * d.dt)
-    c, cz = ColumnCache(d, reg), ColumnCache(z, reg)
-    ls_p.append(fit_model(c, [], np.ones(2))[0].theta[k_mx])
-    iv_p.append(fit_model_iv(c, cz, [], np.ones(2))[0].theta[k_mx])
-plt.figure(figsize=(5, 3))
-plt.plot(cutoffs, ls_p, "o-", label="least squares")
-plt.plot(cutoffs, iv_p, "s-", label="instrumental variables")
-plt.axhline(reg.base_parameters()[k_mx], color="k", ls=":", label="URDF")
-plt.xlabel("cut-off [Hz]")
-plt.ylabel(reg.base_names[k_mx])
-plt.legend()
-plt.tight_layout()
+sweep = cutoff_sweep(fit_files, robot, reg, cutoffs, torque=torque)
+img = plt.imread(plot_cutoff_sweep(sweep, os.path.join(OUT, "cutoff_sweep.png")))
+plt.figure(figsize=(14, 4))
+plt.imshow(img)
+plt.axis("off")
 
 # %% [markdown]
 # ## 4-6. Selection, estimator and before/after

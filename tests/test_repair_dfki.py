@@ -100,22 +100,16 @@ def test_c1_least_squares_parameters_shrink_as_the_cutoff_rises():
     """The signature of noisy regressors (attenuation): the LS gravity parameters of the C.1
     open-loop runs fall as the filter lets more differentiated encoder noise through, while the
     IV estimates (instruments at half the cut-off) move much less."""
-    from robust_drake.identification.data import load
-    from robust_drake.identification.instruments import fit_model_iv
+    from robust_drake.identification.instruments import cutoff_sweep
     from robust_drake.identification.least_squares import load_regressor
-    from robust_drake.identification.selection import ColumnCache, fit_model
 
     robot = "dfki_double_pendulum_c1"
     reg = load_regressor(robot)
     files = sorted(glob.glob(os.path.join(C1, "20230629-143*.csv")))
     k = list(reg.base_names).index("mx_link2")
-    ls, iv = [], []
-    for fc in (4.0, 8.0, 12.0):
-        d = load(files, robot=robot, n_joints=2, cutoff_hz=fc)
-        z = load(files, robot=robot, n_joints=2, cutoff_hz=fc / 2, trim_s=d.filter.trim_samples * d.dt)
-        cf, cz = ColumnCache(d, reg), ColumnCache(z, reg)
-        ls.append(fit_model(cf, [], np.ones(2))[0].theta[k])
-        iv.append(fit_model_iv(cf, cz, [], np.ones(2))[0].theta[k])
+    sweep = cutoff_sweep(files, robot, reg, [4.0, 8.0, 12.0], n_joints=2)
+    ls = [row[k] for row in sweep["least_squares"]]
+    iv = [row[k] for row in sweep["instrumental_variables"]]
     assert ls[0] > ls[1] > ls[2], ls
     assert (ls[0] - ls[2]) / ls[0] > 0.15, ls
     assert abs(iv[0] - iv[2]) < 0.5 * abs(ls[0] - ls[2]), (ls, iv)

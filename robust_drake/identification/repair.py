@@ -355,6 +355,15 @@ def run_repair(fit_paths, options: RepairOptions, validate_paths=None, out_dir=N
         os.makedirs(out_dir, exist_ok=True)
         if opts.plots:
             report["plots"] = _plots(out_dir, fit, val, base_fit, final_fit, base_val_r, final_val_r, cf, cv, chosen)
+            if estimator.get("hausman") and fit_paths_are_files(fit_paths):
+                from robust_drake.identification import instruments as IV
+
+                fc = fit.filter.cutoff_hz
+                sweep = IV.cutoff_sweep(fit_paths, opts.robot, regressor, [0.5 * fc, 0.75 * fc, fc, 1.5 * fc],
+                                        torque=opts.torque, weights=weights, n_joints=fit.n)
+                report["estimator"]["cutoff_sweep"] = sweep
+                IV.plot_cutoff_sweep(sweep, os.path.join(out_dir, "estimator_cutoff.png"))
+                report["plots"].append("estimator_cutoff.png")
         with open(os.path.join(out_dir, "report.json"), "w") as fh:
             json.dump(report, fh, indent=2, default=_json_default)
         with open(os.path.join(out_dir, "report.md"), "w") as fh:
@@ -410,6 +419,10 @@ def _choose_estimator(opts, fit_paths, have_validation, data, fit, val, cf, cv, 
     log(f"errors in variables: Hausman {test['statistic']:.1f} (1 % limit {test['limit']:.1f}, "
         f"{test['dof']} dof) -> {estimator['method']} (instruments low-passed at {fz:g} Hz)")
     return estimator, cz, nf
+
+
+def fit_paths_are_files(paths) -> bool:
+    return all(isinstance(p, (str, os.PathLike)) and os.path.isfile(p) for p in paths)
 
 
 def _consistent_fit(regressor, robot, cf, effects, weights, cz=None):
