@@ -18,6 +18,7 @@ shift of those parameters against the URDF, and its error cut is URDF-only vs UR
 Data are short (12 s at 250 Hz per run) so the whole file stays within its time budget.
 """
 
+import json
 import math
 
 import numpy as np
@@ -105,6 +106,7 @@ def test_payload_is_named_from_the_parameter_shift(tmp_path_factory):
     nom = rep["nominal"]
     assert nom["significant"] and not nom["unexplained_shift"]
     (named,) = [e for e in rep["effects"] if e["source"] == "parameter_shift"]
+    json.dumps(rep, allow_nan=False)  # strict JSON: the named effect has no standard error (null)
     assert named["kind"] == "payload" and named["joint"] is None
     assert named["parameters"]["mass"] == pytest.approx(truth["parameters"]["mass"], rel=truth["rtol"])
     n = len(nom["rms_validate"])

@@ -272,7 +272,7 @@ def run_repair(fit_paths, options: RepairOptions, validate_paths=None, out_dir=N
                 effects_out.append({
                     "kind": named["kind"], "joint": named["joint"], "label": named["label"],
                     "parameters": _jsonable(named["parameters"]), "coefficients": named["coefficients"],
-                    "standard_errors": [float("nan")] * len(named["coefficients"]),
+                    "standard_errors": [None] * len(named["coefficients"]),
                     "rms_validate_after": named["rms_validate_after"],
                     "rms_validate_before": nominal["rms_validate"],
                     "heldout_gain": None, "source": "parameter_shift",
@@ -351,6 +351,7 @@ def run_repair(fit_paths, options: RepairOptions, validate_paths=None, out_dir=N
         "warnings": warn_msgs,
         "notes": notes,
     }
+    report = _strict(report)
     if out_dir:
         os.makedirs(out_dir, exist_ok=True)
         if opts.plots:
@@ -365,7 +366,7 @@ def run_repair(fit_paths, options: RepairOptions, validate_paths=None, out_dir=N
                 IV.plot_cutoff_sweep(sweep, os.path.join(out_dir, "estimator_cutoff.png"))
                 report["plots"].append("estimator_cutoff.png")
         with open(os.path.join(out_dir, "report.json"), "w") as fh:
-            json.dump(report, fh, indent=2, default=_json_default)
+            json.dump(report, fh, indent=2, default=_json_default, allow_nan=False)
         with open(os.path.join(out_dir, "report.md"), "w") as fh:
             fh.write(render_markdown(report))
     return report
@@ -474,6 +475,22 @@ def _jsonable(d):
             v = v.item()
         out[k] = v
     return out
+
+
+def _strict(obj):
+    """The report as strict JSON values: numpy -> Python, NaN/inf -> None (``report.json`` must
+    load in any JSON parser; an unidentifiable parameter's infinite standard error becomes null)."""
+    if isinstance(obj, dict):
+        return {k: _strict(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_strict(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _strict(obj.tolist())
+    if isinstance(obj, np.generic):
+        obj = obj.item()
+    if isinstance(obj, float) and not np.isfinite(obj):
+        return None
+    return obj
 
 
 def _json_default(o):
