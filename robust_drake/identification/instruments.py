@@ -1,10 +1,11 @@
 """Errors in variables: a regressor that carries what the torque does not biases least squares.
 
 The regressor is built from *measured* positions differentiated twice (zero-phase low-pass at
-``f_c``, then central differences). Whatever in those columns the torque does not cause (the
-differentiated encoder noise; motion on the encoder's side of a gear that the link does not make,
-e.g. through backlash at reversals) acts as an error in the variables, and least squares on such
-columns is biased towards smaller parameters ("attenuation"). When the error sits at high
+``f_c``, then central differences). Whatever in those columns the torque does not cause (motion
+on the encoder's side of a gear that the link does not make, e.g. through backlash at reversals;
+vibration; differentiated encoder noise, though quantisation alone is negligible at 14 bits, see
+BUILD_NOTES) acts as an error in the variables, and least squares on such columns is biased
+towards smaller parameters ("attenuation"). When the error sits at high
 frequency the bias grows with the cut-off. It is worst on rows where large inertial and gravity
 torques cancel, e.g. a joint left unpowered (torque ~ 0) that swings by reaction, or motion near
 a resonance.

@@ -567,8 +567,8 @@ def render_markdown(rep: dict) -> str:
         h = est["hausman"]
         L += ["", "## Errors in variables (estimator)", "",
               "The regressor is built from positions differentiated twice; what those columns carry and "
-              "the torque does not (differentiated encoder noise, motion through gear backlash at "
-              "reversals) biases least squares towards smaller parameters. Test: instrumental variables "
+              "the torque does not cause (motion through gear backlash at reversals, vibration, "
+              "differentiated encoder noise) biases least squares towards smaller parameters. Test: instrumental variables "
               f"(the same columns low-passed at {est['instrument_cutoff_hz']:g} Hz) against least squares, "
               f"Durbin-Wu-Hausman statistic {h['statistic']:.1f} over {h['dof']} dof (1 % limit "
               f"{h['limit']:.1f}): " + ("**significant: the repaired model uses the IV estimate.**"
