@@ -143,7 +143,9 @@ def plot_cutoff_sweep(sweep: dict, path: str, top: int = 4) -> str:
     import matplotlib.pyplot as plt
 
     nom = np.asarray(sweep["nominal"])
-    idx = np.argsort(-np.abs(nom))[:top]
+    idx = [k for k in np.argsort(-np.abs(nom)) if abs(nom[k]) > 1e-9 * max(np.abs(nom).max(), 1e-300)][:top]
+    if not idx:
+        raise ValueError("no non-zero nominal parameter to normalise by")
     ls, iv, fc = np.asarray(sweep["least_squares"]), np.asarray(sweep["instrumental_variables"]), sweep["cutoff_hz"]
     fig, axes = plt.subplots(1, len(idx), figsize=(3.2 * len(idx), 2.8), squeeze=False)
     for ax, k in zip(axes[0], idx):
