@@ -247,6 +247,16 @@ def simulate_experiment(robot=DEFAULT_ROBOT, effects=(), duration=15.0, rate_hz=
     return df
 
 
+def _add_band_noise(df, rms: float, band_hz, rate_hz: float, rng) -> None:
+    """Add zero-phase band-passed white noise of the given RMS [rad] to every ``q`` column."""
+    from scipy.signal import butter, sosfiltfilt
+
+    sos = butter(4, list(band_hz), btype="band", fs=rate_hz, output="sos")
+    for c in [c for c in df.columns if c.startswith("q") and c[1:].isdigit()]:
+        x = sosfiltfilt(sos, rng.standard_normal(len(df)))
+        df[c] = df[c].to_numpy() + rms * x / x.std()
+
+
 class _Prebuilt(Effect):
     """Wraps an already built block so it goes through :func:`add_effect_blocks`."""
 
@@ -348,6 +358,12 @@ def hidden_effect_case(kind, seed=0, out_dir=None, duration=12.0, rate_hz=250.0,
         robot = strip_rotor_inertia(robot, os.path.join(out_dir, "no_rotor_inertia.urdf"))
     if kind == "none":
         truth = {"kind": None, "joint": None, "parameters": {}}
+    elif kind == "sensor_vibration":
+        # outside the torque path altogether: the *measured* positions carry a band-limited
+        # vibration (5-8 Hz, inside the 8 Hz analysis band, above the 4 Hz instruments) that the
+        # torque does not cause -- errors in the variables (instruments.py); the plant is exact
+        truth = {"kind": kind, "joint": None,
+                 "parameters": {"rms": kw.pop("vibration_rms", 2e-3), "band_hz": [5.0, 8.0]}}
     elif kind == "periodic_disturbance":
         amp, f = (0.0, 0.08), 0.7
         extra = (lambda n: PeriodicDisturbance(n, amp, f, 0.3),)
@@ -355,7 +371,7 @@ def hidden_effect_case(kind, seed=0, out_dir=None, duration=12.0, rate_hz=250.0,
     else:
         if kind not in HIDDEN_CASES:
             raise RobustDrakeError(f"no hidden-effect case for {kind!r}; known: "
-                                   f"{', '.join(list(HIDDEN_CASES) + ['none', 'periodic_disturbance'])}")
+                                   f"{', '.join(list(HIDDEN_CASES) + ['none', 'periodic_disturbance', 'sensor_vibration'])}")
         case = HIDDEN_CASES[kind]
         params = dict(case["parameters"])
         if kind == "payload":
@@ -367,7 +383,11 @@ def hidden_effect_case(kind, seed=0, out_dir=None, duration=12.0, rate_hz=250.0,
     paths = []
     for role, s in (("fit", seed), ("validate", seed + 1)):
         path = os.path.join(out_dir, f"{kind}_{role}.csv")
-        simulate_experiment(robot, effects, duration=duration, rate_hz=rate_hz, seed=s,
-                            out_csv=path, extra_blocks=extra, **kw)
+        df = simulate_experiment(robot, effects, duration=duration, rate_hz=rate_hz, seed=s,
+                                 out_csv=None if kind == "sensor_vibration" else path, extra_blocks=extra, **kw)
+        if kind == "sensor_vibration":
+            _add_band_noise(df, truth["parameters"]["rms"], truth["parameters"]["band_hz"], rate_hz,
+                            np.random.default_rng(20_000 + s))
+            df.to_csv(path, index=False, float_format="%.10g")
         paths.append(path)
     return paths[0], paths[1], truth
