@@ -239,12 +239,11 @@ class SelectionResult:
 
 def forward_select(cache: ColumnCache, candidates: list, min_gain: float = MIN_GAIN,
                    max_effects: int = 4, folds: int = CV_FOLDS, progress=None, weights=None,
-                   initial=(), icache=None) -> SelectionResult:
+                   icache=None) -> SelectionResult:
     """Greedy forward selection (see module docstring). ``progress(msg)`` is called per step.
 
     ``weights`` (n,): per-joint row weights (default 1 / baseline residual RMS of each joint).
-    ``initial``: effects already in the model (the search continues from them; scores stay
-    relative to the model without them). ``icache``: instrument columns; every fit, held-out
+    ``icache``: instrument columns; every fit, held-out
     score and BIC then uses instrumental variables (``instruments.py``)."""
     from robust_drake.identification.instruments import solve_iv
 
@@ -273,13 +272,9 @@ def forward_select(cache: ColumnCache, candidates: list, min_gain: float = MIN_G
         r = (tau - predict_tau(cache, effects, fit.theta)) * weights[None, :]
         return score, bic(float(np.sum(r**2)), rows, fit.rank, n_eff_rows), fit, names, slices, ""
 
-    base_eval = evaluate([])
-    baseline_score = base_eval[0]
-    chosen = list(initial)
-    score, b = (evaluate(chosen) if chosen else base_eval)[:2]
-    steps = []
-    taken = {(e.kind, e.joint) for e in chosen}
-    pool = [e for e in candidates if (e.kind, e.joint) not in taken]
+    score, b, _, _, _, _ = evaluate([])
+    baseline_score = score
+    chosen, steps, pool = [], [], list(candidates)
     ranking = []
     while pool and len(chosen) < max_effects:
         trials = []
