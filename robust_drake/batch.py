@@ -38,6 +38,7 @@ import uuid
 from collections import OrderedDict
 from typing import Any, Iterable, Sequence
 
+from robust_drake.divergence import TRACKING_ERROR_LIMIT
 from robust_drake.errors import RobustDrakeError
 from robust_drake.parallel import iter_parallel
 from robust_drake.scenario import Scenario, dedupe, spec_fingerprint, validate_scenarios
@@ -55,8 +56,9 @@ __all__ = [
 METRIC_KEYS = ("error1", "maxerr1", "error2", "maxerr2", "error_task", "maxerr_task")
 STATUSES = ("ok", "diverged", "failed")
 
-#: A run whose joint error exceeds this [rad] has lost the reference: status "diverged".
-DEFAULT_DIVERGENCE_ERROR = math.pi
+#: A run whose joint error exceeds this [rad] has lost the reference: status "diverged"
+#: (the shared definition is :func:`robust_drake.divergence.is_diverged`).
+DEFAULT_DIVERGENCE_ERROR = TRACKING_ERROR_LIMIT
 
 _META_KEY = b"robust_drake.batch"
 _DICT_COLUMNS = ("controller_params", "trajectory_params", "observer_params", "tags", "extra")
@@ -83,7 +85,7 @@ def _get_loop(scenario: Scenario, config, reuse: bool):
         fresh = config.resolved()
         # Per-run fields that ClosedLoop.simulate reads from its config.
         for name in ("true_theta", "initial_q", "duration", "metrics_skip", "metrics_dt",
-                     "plant_setup"):
+                     "plant_setup", "divergence_error"):
             if hasattr(fresh, name):
                 setattr(loop.config, name, getattr(fresh, name))
         return loop, 0.0
@@ -126,26 +128,15 @@ def run_scenario(scenario: Scenario | dict, *, reuse: bool = True,
         config = scenario.to_config()
         loop, build = _get_loop(scenario, config, reuse)
         row["build_seconds"] = build
+        loop.config.divergence_error = float(divergence_error)
         res = loop.simulate(None if scenario.duration is None else float(scenario.duration))
         row.update({k: float(res.metrics.get(k, math.nan)) for k in METRIC_KEYS})
         row.update(_torque_columns(res.torque_stats or {}))
         row["sim_seconds"] = float(res.sim_seconds)
-        n = res.q.shape[1] if res.q.ndim == 2 else 0
-        max_joint_err = max((row.get(f"maxerr{j + 1}", math.nan) for j in range(min(n, 2))),
-                            default=math.nan)
-        if n > 2:  # metrics only name two joints; check all of them
-            import numpy as np
-
-            max_joint_err = float(np.max(np.abs(res.q - res.q_d)))
-        if res.diverged:
+        if res.diverged:  # robust_drake.divergence.is_diverged, applied by ClosedLoop.simulate
             row["status"] = "diverged"
-            row["error"] = (f"simulation diverged at t = {row['sim_seconds']:.4g} s "
-                            "(non-finite state, |q| or |v| beyond the builder's limit, or an "
-                            "integrator failure)")
-        elif max_joint_err > divergence_error:
-            row["status"] = "diverged"
-            row["error"] = (f"tracking lost: max joint error {max_joint_err:.3g} rad > "
-                            f"{divergence_error:.3g} rad")
+            row["error"] = f"diverged: {res.divergence_reason}"
+            row.update({k: math.nan for k in METRIC_KEYS})  # never in percentiles
         else:
             row["status"] = "ok"
     except Exception as exc:  # noqa: BLE001 - recorded in the row, the batch continues
