@@ -323,7 +323,13 @@ def expand_product(spec: dict) -> list[Scenario]:
 def scenarios_from_records(records: Iterable[dict], defaults: dict | None = None) -> list[Scenario]:
     """Scenarios from a list of mappings (YAML ``scenarios:`` list or CSV rows)."""
     out = []
+    if not isinstance(records, (list, tuple)):
+        raise RobustDrakeError(f"'scenarios' must be a list of mappings, got {type(records).__name__}")
     for i, rec in enumerate(records):
+        if not isinstance(rec, dict):
+            raise RobustDrakeError(
+                f"scenario #{i + 1} must be a mapping of scenario fields (e.g. "
+                f"{{controller: sp1, load: max}}), got {type(rec).__name__} {rec!r}")
         d = dict(defaults or {})
         rec = dict(rec)
         for key in list(rec):
