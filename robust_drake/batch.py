@@ -194,14 +194,80 @@ def _rows_frame(rows: list[dict]):
     return df
 
 
+class BatchLock:
+    """Exclusive, non-blocking lock of one results file: ``fcntl.flock`` on ``<out>.lock``
+    (holding this run's PID) for the whole run, so that a second batch on the same file is
+    refused at once instead of rerunning every scenario beside the first. Released by
+    :meth:`release` or when the process dies (the kernel drops flocks of dead processes).
+    Where ``fcntl`` does not exist (Windows) no lock is taken."""
+
+    def __init__(self, results_path: pathlib.Path):
+        self.path = results_path.with_name(results_path.name + ".lock")
+        self._fd = None
+        try:
+            import fcntl
+        except ImportError:  # pragma: no cover - not POSIX
+            return
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        while True:
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError:
+                try:
+                    other = os.read(fd, 64).decode(errors="replace").strip() or "unknown"
+                finally:
+                    os.close(fd)
+                raise RobustDrakeError(
+                    f"{results_path} is in use by another batch run (PID {other}, lock "
+                    f"{self.path}); wait for it to finish or choose another --out") from None
+            # The holder before us may have unlinked the file after we opened it: lock again
+            # on the file that is now at the path.
+            try:
+                same = os.stat(self.path).st_ino == os.fstat(fd).st_ino
+            except FileNotFoundError:
+                same = False
+            if same:
+                break
+            os.close(fd)
+        os.ftruncate(fd, 0)
+        os.write(fd, str(os.getpid()).encode())
+        self._fd = fd
+
+    def release(self) -> None:
+        if self._fd is None:
+            return
+        try:
+            self.path.unlink(missing_ok=True)  # while still holding it (see __init__)
+        finally:
+            os.close(self._fd)  # closes the flock too
+            self._fd = None
+
+
 class ResultStore:
-    """Incremental, crash-safe Parquet results for one batch (see the module docstring)."""
+    """Incremental, crash-safe Parquet results for one batch (see the module docstring).
+
+    Holds a :class:`BatchLock` on the file from construction to :meth:`close`."""
 
     def __init__(self, path: str | os.PathLike, fingerprint: str, spec: Any = None,
                  force: bool = False):
         self.path = pathlib.Path(path)
         if self.path.suffix != ".parquet":
             raise RobustDrakeError(f"results file must end in .parquet (got {self.path})")
+        self.lock = BatchLock(self.path)
+        try:
+            self._open(fingerprint, spec, force)
+        except BaseException:
+            self.lock.release()
+            raise
+
+    def close(self) -> None:
+        """Release the lock on the results file."""
+        lock = getattr(self, "lock", None)
+        if lock is not None:
+            lock.release()
+
+    def _open(self, fingerprint: str, spec: Any, force: bool) -> None:
         self.parts = self.path.with_name(self.path.name + ".parts")
         self.fingerprint = fingerprint
         self.spec = spec
@@ -370,7 +436,11 @@ def run_batch(
         validate_scenarios(scenarios)
     fingerprint = spec_fingerprint(scenarios)
     store = ResultStore(out, fingerprint, spec, force=force) if out is not None else None
-    previous = store.read() if store is not None else pd.DataFrame()
+    try:
+        previous = store.read() if store is not None else pd.DataFrame()
+    except BaseException:
+        store.close()
+        raise
     done_rows: dict[str, dict] = {}
     if len(previous):
         skip_status = {"ok", "diverged"} if retry_failed else set(STATUSES)
@@ -403,7 +473,10 @@ def run_batch(
         raise
     finally:
         if store is not None:
-            store.flush(final=not interrupted and len(new_rows) == len(todo))
+            try:
+                store.flush(final=not interrupted and len(new_rows) == len(todo))
+            finally:
+                store.close()
     rows = []
     for s in scenarios:
         r = new_rows.get(s.id) or done_rows.get(s.id)
