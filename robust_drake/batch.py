@@ -431,6 +431,9 @@ def run_batch(
     """
     import pandas as pd
 
+    if not (isinstance(divergence_error, (int, float)) and math.isfinite(divergence_error)
+            and divergence_error > 0):
+        raise RobustDrakeError(f"divergence_error must be a positive number of rad (got {divergence_error!r})")
     scenarios = dedupe(s if isinstance(s, Scenario) else Scenario.from_dict(s) for s in scenarios)
     if validate:
         validate_scenarios(scenarios)

@@ -480,6 +480,13 @@ def validate_scenarios(scenarios: Iterable[Scenario]) -> None:
             problems.append(f"{where}: rate must be a positive number of Hz, got {s.rate!r}")
         if s.duration is not None and not (isinstance(s.duration, (int, float)) and s.duration > 0):
             problems.append(f"{where}: duration must be positive, got {s.duration!r}")
+        elif s.duration is not None and not problems:
+            from robust_drake.diagram import check_run_size
+
+            try:  # refuse a runaway size now, not once per worker
+                check_run_size(float(s.duration), float(s.rate))
+            except RobustDrakeError as exc:
+                problems.append(f"{where}: {exc}")
     if problems:
         uniq = list(dict.fromkeys(problems))
         more = f"\n... and {len(uniq) - 20} more" if len(uniq) > 20 else ""

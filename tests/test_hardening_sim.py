@@ -344,3 +344,16 @@ def test_killed_batch_parent_leaves_no_process_behind(tmp_path):
             os.kill(p, signal.SIGKILL)
         if parent.poll() is None:
             parent.kill()
+
+
+def test_batch_refuses_a_runaway_scenario_before_running_anything(tmp_path):
+    from robust_drake.batch import run_batch
+    from robust_drake.scenario import Scenario
+
+    out = tmp_path / "r.parquet"
+    with pytest.raises(RobustDrakeError, match="MAX_LOG_SAMPLES"):
+        run_batch([Scenario(duration=0.05), Scenario(duration=0.2, rate=1e9)], out=out,
+                  workers=1, progress=False)
+    assert not out.exists()
+    with pytest.raises(RobustDrakeError, match="divergence_error"):
+        run_batch([Scenario(duration=0.05)], workers=1, progress=False, divergence_error=-1.0)
