@@ -38,6 +38,7 @@ import uuid
 from collections import OrderedDict
 from typing import Any, Iterable, Sequence
 
+from robust_drake.divergence import TRACKING_ERROR_LIMIT
 from robust_drake.errors import RobustDrakeError
 from robust_drake.parallel import iter_parallel
 from robust_drake.scenario import Scenario, dedupe, spec_fingerprint, validate_scenarios
@@ -55,8 +56,9 @@ __all__ = [
 METRIC_KEYS = ("error1", "maxerr1", "error2", "maxerr2", "error_task", "maxerr_task")
 STATUSES = ("ok", "diverged", "failed")
 
-#: A run whose joint error exceeds this [rad] has lost the reference: status "diverged".
-DEFAULT_DIVERGENCE_ERROR = math.pi
+#: A run whose joint error exceeds this [rad] has lost the reference: status "diverged"
+#: (the shared definition is :func:`robust_drake.divergence.is_diverged`).
+DEFAULT_DIVERGENCE_ERROR = TRACKING_ERROR_LIMIT
 
 _META_KEY = b"robust_drake.batch"
 _DICT_COLUMNS = ("controller_params", "trajectory_params", "observer_params", "tags", "extra")
@@ -83,7 +85,7 @@ def _get_loop(scenario: Scenario, config, reuse: bool):
         fresh = config.resolved()
         # Per-run fields that ClosedLoop.simulate reads from its config.
         for name in ("true_theta", "initial_q", "duration", "metrics_skip", "metrics_dt",
-                     "plant_setup"):
+                     "plant_setup", "divergence_error"):
             if hasattr(fresh, name):
                 setattr(loop.config, name, getattr(fresh, name))
         return loop, 0.0
@@ -126,26 +128,15 @@ def run_scenario(scenario: Scenario | dict, *, reuse: bool = True,
         config = scenario.to_config()
         loop, build = _get_loop(scenario, config, reuse)
         row["build_seconds"] = build
+        loop.config.divergence_error = float(divergence_error)
         res = loop.simulate(None if scenario.duration is None else float(scenario.duration))
         row.update({k: float(res.metrics.get(k, math.nan)) for k in METRIC_KEYS})
         row.update(_torque_columns(res.torque_stats or {}))
         row["sim_seconds"] = float(res.sim_seconds)
-        n = res.q.shape[1] if res.q.ndim == 2 else 0
-        max_joint_err = max((row.get(f"maxerr{j + 1}", math.nan) for j in range(min(n, 2))),
-                            default=math.nan)
-        if n > 2:  # metrics only name two joints; check all of them
-            import numpy as np
-
-            max_joint_err = float(np.max(np.abs(res.q - res.q_d)))
-        if res.diverged:
+        if res.diverged:  # robust_drake.divergence.is_diverged, applied by ClosedLoop.simulate
             row["status"] = "diverged"
-            row["error"] = (f"simulation diverged at t = {row['sim_seconds']:.4g} s "
-                            "(non-finite state, |q| or |v| beyond the builder's limit, or an "
-                            "integrator failure)")
-        elif max_joint_err > divergence_error:
-            row["status"] = "diverged"
-            row["error"] = (f"tracking lost: max joint error {max_joint_err:.3g} rad > "
-                            f"{divergence_error:.3g} rad")
+            row["error"] = f"diverged: {res.divergence_reason}"
+            row.update({k: math.nan for k in METRIC_KEYS})  # never in percentiles
         else:
             row["status"] = "ok"
     except Exception as exc:  # noqa: BLE001 - recorded in the row, the batch continues
@@ -203,14 +194,80 @@ def _rows_frame(rows: list[dict]):
     return df
 
 
+class BatchLock:
+    """Exclusive, non-blocking lock of one results file: ``fcntl.flock`` on ``<out>.lock``
+    (holding this run's PID) for the whole run, so that a second batch on the same file is
+    refused at once instead of rerunning every scenario beside the first. Released by
+    :meth:`release` or when the process dies (the kernel drops flocks of dead processes).
+    Where ``fcntl`` does not exist (Windows) no lock is taken."""
+
+    def __init__(self, results_path: pathlib.Path):
+        self.path = results_path.with_name(results_path.name + ".lock")
+        self._fd = None
+        try:
+            import fcntl
+        except ImportError:  # pragma: no cover - not POSIX
+            return
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        while True:
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError:
+                try:
+                    other = os.read(fd, 64).decode(errors="replace").strip() or "unknown"
+                finally:
+                    os.close(fd)
+                raise RobustDrakeError(
+                    f"{results_path} is in use by another batch run (PID {other}, lock "
+                    f"{self.path}); wait for it to finish or choose another --out") from None
+            # The holder before us may have unlinked the file after we opened it: lock again
+            # on the file that is now at the path.
+            try:
+                same = os.stat(self.path).st_ino == os.fstat(fd).st_ino
+            except FileNotFoundError:
+                same = False
+            if same:
+                break
+            os.close(fd)
+        os.ftruncate(fd, 0)
+        os.write(fd, str(os.getpid()).encode())
+        self._fd = fd
+
+    def release(self) -> None:
+        if self._fd is None:
+            return
+        try:
+            self.path.unlink(missing_ok=True)  # while still holding it (see __init__)
+        finally:
+            os.close(self._fd)  # closes the flock too
+            self._fd = None
+
+
 class ResultStore:
-    """Incremental, crash-safe Parquet results for one batch (see the module docstring)."""
+    """Incremental, crash-safe Parquet results for one batch (see the module docstring).
+
+    Holds a :class:`BatchLock` on the file from construction to :meth:`close`."""
 
     def __init__(self, path: str | os.PathLike, fingerprint: str, spec: Any = None,
                  force: bool = False):
         self.path = pathlib.Path(path)
         if self.path.suffix != ".parquet":
             raise RobustDrakeError(f"results file must end in .parquet (got {self.path})")
+        self.lock = BatchLock(self.path)
+        try:
+            self._open(fingerprint, spec, force)
+        except BaseException:
+            self.lock.release()
+            raise
+
+    def close(self) -> None:
+        """Release the lock on the results file."""
+        lock = getattr(self, "lock", None)
+        if lock is not None:
+            lock.release()
+
+    def _open(self, fingerprint: str, spec: Any, force: bool) -> None:
         self.parts = self.path.with_name(self.path.name + ".parts")
         self.fingerprint = fingerprint
         self.spec = spec
@@ -374,12 +431,19 @@ def run_batch(
     """
     import pandas as pd
 
+    if not (isinstance(divergence_error, (int, float)) and math.isfinite(divergence_error)
+            and divergence_error > 0):
+        raise RobustDrakeError(f"divergence_error must be a positive number of rad (got {divergence_error!r})")
     scenarios = dedupe(s if isinstance(s, Scenario) else Scenario.from_dict(s) for s in scenarios)
     if validate:
         validate_scenarios(scenarios)
     fingerprint = spec_fingerprint(scenarios)
     store = ResultStore(out, fingerprint, spec, force=force) if out is not None else None
-    previous = store.read() if store is not None else pd.DataFrame()
+    try:
+        previous = store.read() if store is not None else pd.DataFrame()
+    except BaseException:
+        store.close()
+        raise
     done_rows: dict[str, dict] = {}
     if len(previous):
         skip_status = {"ok", "diverged"} if retry_failed else set(STATUSES)
@@ -412,7 +476,10 @@ def run_batch(
         raise
     finally:
         if store is not None:
-            store.flush(final=not interrupted and len(new_rows) == len(todo))
+            try:
+                store.flush(final=not interrupted and len(new_rows) == len(todo))
+            finally:
+                store.close()
     rows = []
     for s in scenarios:
         r = new_rows.get(s.id) or done_rows.get(s.id)

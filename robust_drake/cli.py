@@ -41,19 +41,35 @@ def add_output_flags(parser: argparse.ArgumentParser, plot: str | None = "FILE")
         parser.add_argument("--plot", metavar=plot, default=None, help="write plot(s) to this path")
 
 
-def print_json(obj) -> None:
-    """Print ``obj`` as JSON, converting numpy scalars/arrays."""
+def strict_json(obj):
+    """``obj`` with numpy scalars/arrays as Python values, tuples as lists and every NaN or
+    infinity as None, so that it serialises as strict JSON (RFC 8259 has no NaN)."""
+    import math
+
     import numpy as np
 
+    if isinstance(obj, dict):
+        return {(k if isinstance(k, str) else str(k)): strict_json(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [strict_json(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return strict_json(obj.tolist())
+    if isinstance(obj, np.generic):
+        return strict_json(obj.item())
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
+
+
+def print_json(obj) -> None:
+    """Print ``obj`` as strict JSON (numpy converted, NaN/inf as null; ``allow_nan=False``
+    so nothing non-standard can reach stdout)."""
+
     def default(o):
-        if isinstance(o, np.ndarray):
-            return o.tolist()
-        if isinstance(o, np.generic):
-            return o.item()
         raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
-    json.dump(obj, sys.stdout, default=default, indent=2)
-    sys.stdout.write("\n")
+    text = json.dumps(strict_json(obj), default=default, indent=2, allow_nan=False)
+    sys.stdout.write(text + "\n")
 
 
 def format_table(rows: list[list], header: list[str], floatfmt: str = "{:.4g}") -> str:

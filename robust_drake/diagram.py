@@ -24,6 +24,8 @@ A notebook user writes::
 from __future__ import annotations
 
 import math
+import numbers
+import os
 import time
 from dataclasses import asdict, dataclass, field
 from typing import Any, Callable
@@ -33,6 +35,7 @@ from pydrake.systems.analysis import ResetIntegratorFromFlags, Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import Adder, ConstantVectorSource, LogVectorOutput, Saturation
 
+from robust_drake.divergence import STATE_LIMIT, TRACKING_ERROR_LIMIT, is_diverged
 from robust_drake.errors import RobustDrakeError
 from robust_drake.metrics import error_criteria, torque_statistics
 from robust_drake.models import ArmSpec, ROBOTS, add_arm, get_arm, set_d2r2_theta
@@ -48,7 +51,34 @@ from robust_drake.systems.sensors import D2R2_THETA_M, QuantizingEncoder, quanti
 from robust_drake.trajectories import ReferenceTrajectory, make_reference
 
 MAX_INTEGRATOR_STEP = 4e-4  # s; the plant is integrated with steps no longer than this
-DIVERGENCE_LIMIT = 1e3  # |q| [rad] or |v| [rad/s] beyond this marks a run as diverged
+DIVERGENCE_LIMIT = STATE_LIMIT  # |q| [rad] or |v| [rad/s]; see robust_drake.divergence
+
+#: Logged samples per logger of one run (one per controller tick): ~150 B each for the
+#: 2-joint arm, so 2e6 samples (800 s at 2500 Hz) keep the logs near 300 MB.
+MAX_LOG_SAMPLES = 2_000_000
+#: Fixed RK2 steps of one run (several per tick at low rates; ~ an hour of wall time).
+MAX_INTEGRATOR_STEPS = 50_000_000
+
+
+def check_run_size(duration: float, rate: float) -> None:
+    """Refuse a run whose controller ticks (each logged, so: logged samples) exceed
+    :data:`MAX_LOG_SAMPLES` or whose integrator steps exceed :data:`MAX_INTEGRATOR_STEPS`,
+    before anything is allocated (``duration`` [s], ``rate`` [Hz])."""
+    ticks = float(duration) * float(rate)
+    if ticks + 1 > MAX_LOG_SAMPLES:
+        raise RobustDrakeError(
+            f"{duration:g} s at {rate:g} Hz is {ticks:.3g} controller ticks, each logged: more "
+            f"than the limit of {MAX_LOG_SAMPLES:.3g} logged samples per run "
+            "(robust_drake.diagram.MAX_LOG_SAMPLES); lower the rate or the duration")
+    period = 1.0 / float(rate)
+    sub = max(1, math.ceil(period / MAX_INTEGRATOR_STEP - 1e-9))
+    steps = ticks * sub
+    if steps > MAX_INTEGRATOR_STEPS:
+        raise RobustDrakeError(
+            f"{duration:g} s at {rate:g} Hz needs {steps:.3g} integrator steps (at most "
+            f"{MAX_INTEGRATOR_STEP * 1e3:g} ms each): more than the limit of "
+            f"{MAX_INTEGRATOR_STEPS:.3g} (robust_drake.diagram.MAX_INTEGRATOR_STEPS); "
+            "shorten the duration")
 
 _DEFAULT = object()
 
@@ -95,6 +125,15 @@ class ClosedLoopConfig:
     effects: list = field(default_factory=list)
     plant_setup: list = field(default_factory=list)
     feedforward: list = field(default_factory=list)
+    divergence_error: float | None = TRACKING_ERROR_LIMIT
+
+    def __post_init__(self):
+        self.validate()
+
+    def validate(self) -> None:
+        """Check types and ranges of every field; raise RobustDrakeError naming the first
+        bad one (called on construction, so a bad config never reaches the builder)."""
+        _check_config(self)
 
     def resolved(self) -> "ClosedLoopConfig":
         """A copy with the robot-dependent defaults filled in and inputs checked."""
@@ -108,16 +147,91 @@ class ClosedLoopConfig:
             arm = ROBOTS.get(c.robot)
             lim = arm.torque_limits if arm is not None and arm.torque_limits else None
             c.torque_limit = list(lim) if (lim is not None and d2r2) else None
-        if not (isinstance(c.rate, (int, float)) and math.isfinite(c.rate) and c.rate > 0):
-            raise RobustDrakeError(f"sample rate must be a positive number of Hz (got {c.rate!r})")
-        if c.duration is not None and not c.duration > 0:
-            raise RobustDrakeError(f"duration must be positive (got {c.duration})")
+        if c.duration is not None:
+            check_run_size(c.duration, c.rate)
         return c
 
     def to_dict(self) -> dict:
         d = {k: getattr(self, k) for k in self.__dataclass_fields__ if k not in ("effects", "plant_setup", "feedforward")}
         d["effects"] = [e if isinstance(e, (list, tuple)) else getattr(e, "__name__", repr(e)) for e in self.effects]
         return {k: (None if v is _DEFAULT else v) for k, v in d.items()}
+
+
+def _is_real(x) -> bool:
+    return isinstance(x, numbers.Real) and not isinstance(x, bool)
+
+
+def _finite_positive(x) -> bool:
+    return _is_real(x) and math.isfinite(float(x)) and float(x) > 0
+
+
+def _finite_vector(x, what: str, positive: bool = False) -> None:
+    try:
+        a = np.asarray(x, dtype=float)
+    except (TypeError, ValueError):
+        raise RobustDrakeError(f"{what} must be a number or a list of numbers (got {x!r})") from None
+    if a.ndim > 1 or a.size == 0:
+        raise RobustDrakeError(f"{what} must be a number or a flat list of numbers (got {x!r})")
+    if not np.all(np.isfinite(a)):
+        raise RobustDrakeError(f"{what} must be finite (got {x!r})")
+    if positive and np.any(a <= 0):
+        raise RobustDrakeError(f"{what} must be positive (got {x!r})")
+
+
+def _check_config(c: "ClosedLoopConfig") -> None:
+    """The checks of :meth:`ClosedLoopConfig.validate` (one place for every field)."""
+    if not isinstance(c.robot, (str, os.PathLike)) or not str(c.robot):
+        raise RobustDrakeError(f"robot must be a robot name or a URDF path (got {c.robot!r})")
+    for name in ("load", "controller", "trajectory", "observer"):
+        v = getattr(c, name)
+        if not isinstance(v, str) or not v:
+            raise RobustDrakeError(f"{name} must be a name (a non-empty string), got {v!r}")
+    for name in ("controller_params", "trajectory_params", "observer_params", "compensation_params"):
+        v = getattr(c, name)
+        if not isinstance(v, dict) or not all(isinstance(k, str) for k in v):
+            raise RobustDrakeError(f"{name} must be a dict of name -> value (got {v!r})")
+    if not _finite_positive(c.rate):
+        raise RobustDrakeError(f"sample rate must be a positive finite number of Hz (got {c.rate!r})")
+    if c.duration is not None and not _finite_positive(c.duration):
+        raise RobustDrakeError(f"duration must be a positive finite number of seconds or None (got {c.duration!r})")
+    if not (_is_real(c.metrics_skip) and math.isfinite(float(c.metrics_skip)) and c.metrics_skip >= 0):
+        raise RobustDrakeError(f"metrics_skip must be a finite number of seconds >= 0 (got {c.metrics_skip!r})")
+    if c.metrics_dt is not None and not _finite_positive(c.metrics_dt):
+        raise RobustDrakeError(
+            f"metrics_dt must be a positive finite resampling interval [s] or None (got {c.metrics_dt!r})")
+    if not isinstance(c.friction_compensation, (bool, np.bool_)):
+        raise RobustDrakeError(f"friction_compensation must be True or False (got {c.friction_compensation!r})")
+    for name in ("initial_q", "true_theta"):
+        v = getattr(c, name)
+        if v is not None:
+            _finite_vector(v, name)
+    for name in ("torque_limit", "encoder_resolution"):
+        v = getattr(c, name)
+        if v is not _DEFAULT and v is not None:
+            _finite_vector(v, name, positive=True)
+    if c.plant_friction is not _DEFAULT and c.plant_friction is not None:
+        pf = c.plant_friction
+        if not isinstance(pf, dict) or set(pf) != {"coulomb", "viscous"}:
+            raise RobustDrakeError(
+                f"plant_friction must be None or {{'coulomb': [...], 'viscous': [...]}} (got {pf!r})")
+        for k in ("coulomb", "viscous"):
+            _finite_vector(pf[k], f"plant_friction[{k!r}]")
+    for name in ("effects", "plant_setup", "feedforward"):
+        if not isinstance(getattr(c, name), (list, tuple)):
+            raise RobustDrakeError(f"{name} must be a list (got {getattr(c, name)!r})")
+    if c.divergence_error is not None and not _finite_positive(c.divergence_error):
+        raise RobustDrakeError(f"divergence_error must be a positive number of rad or None (got {c.divergence_error!r})")
+
+
+def _make_block(kind: str, name: str, ctx, params: dict):
+    """``resolve(kind, name)(ctx, **params)``, with a wrong parameter name or value reported
+    as a one-line user error naming the block."""
+    factory = resolve(kind, name)
+    try:
+        return factory(ctx, **dict(params))
+    except (TypeError, ValueError) as exc:
+        msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise RobustDrakeError(f"{kind} {name!r} with parameters {dict(params)!r}: {msg}") from None
 
 
 @dataclass
@@ -141,10 +255,12 @@ class SimulationResult:
     diverged: bool
     config: dict
     link_lengths: tuple | None = None
+    divergence_reason: str | None = None  # why ``diverged`` (robust_drake.divergence), else None
 
     def to_dict(self, logs: bool = False) -> dict:
         out = dict(self.metrics)
-        out.update(sim_seconds=self.sim_seconds, wall_seconds=self.wall_seconds, diverged=self.diverged)
+        out.update(sim_seconds=self.sim_seconds, wall_seconds=self.wall_seconds, diverged=self.diverged,
+                   divergence_reason=self.divergence_reason)
         out.update(self.torque_stats)
         if logs:
             for k in ("t", "q", "v", "q_d", "qd_d", "q_meas", "u", "tau"):
@@ -186,7 +302,13 @@ class ClosedLoop:
         self.build_context = ctx
 
         # reference
-        self.reference = make_reference(self.arm, c.trajectory, **dict(c.trajectory_params))
+        try:
+            self.reference = make_reference(self.arm, c.trajectory, **dict(c.trajectory_params))
+        except (TypeError, ValueError) as exc:
+            msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            raise RobustDrakeError(
+                f"trajectory {c.trajectory!r} with parameters {dict(c.trajectory_params)!r}: {msg}") from None
+        check_run_size(c.duration or self.reference.duration, c.rate)
         if self.reference.n != n:
             raise RobustDrakeError(f"trajectory {c.trajectory!r} has {self.reference.n} joints, robot has {n}")
         src = builder.AddSystem(ReferenceTrajectory(self.reference, self.period))
@@ -202,7 +324,7 @@ class ClosedLoop:
         self.encoder = enc
 
         # observer
-        obs = builder.AddSystem(resolve("observer", c.observer)(ctx, **dict(c.observer_params)))
+        obs = builder.AddSystem(_make_block("observer", c.observer, ctx, c.observer_params))
         obs.set_name("observer")
         self.observer = obs
         builder.Connect(q_meas, obs.GetInputPort("q"))
@@ -211,7 +333,7 @@ class ClosedLoop:
             builder.Connect(plant.get_state_output_port(), obs.GetInputPort("state"))
 
         # controller (+ fixed friction compensation) + saturation
-        ctrl = builder.AddSystem(resolve("controller", c.controller)(ctx, **dict(c.controller_params)))
+        ctrl = builder.AddSystem(_make_block("controller", c.controller, ctx, c.controller_params))
         ctrl.set_name("controller")
         self.controller = ctrl
         builder.Connect(x_d, ctrl.GetInputPort("x_d"))
@@ -271,7 +393,7 @@ class ClosedLoop:
                 block = eff(ctx)
             else:
                 name, params = (eff[0], eff[1]) if len(eff) > 1 else (eff[0], {})
-                block = resolve("plant_effect", name)(ctx, **dict(params))
+                block = _make_block("plant_effect", name, ctx, params)
             block = builder.AddSystem(block)
             block.set_name(f"effect_{i}_{block.get_name() or type(block).__name__}")
             self.effect_blocks.append(block)
@@ -321,15 +443,19 @@ class ClosedLoop:
         """Run from rest at q_d(0) (or ``initial_q``) for ``duration`` s (default: the reference's)."""
         self._finish()
         c = self.config
-        duration = float(duration or c.duration or self.reference.duration)
-        if duration <= 0:
-            raise RobustDrakeError("duration must be positive")
+        duration = duration if duration is not None else (c.duration or self.reference.duration)
+        if not _finite_positive(duration):
+            raise RobustDrakeError(f"duration must be a positive finite number of seconds (got {duration!r})")
+        duration = float(duration)
+        check_run_size(duration, c.rate)
         plant, n = self.plant, self.n
         context = self.diagram.CreateDefaultContext()
         plant_context = plant.GetMyMutableContextFromRoot(context)
         q_d0, qd_d0 = self.reference.initial_state()
-        q0 = q_d0 if (initial_q if initial_q is not None else c.initial_q) is None else _vector(
-            initial_q if initial_q is not None else c.initial_q, n, "initial_q")
+        q_init = initial_q if initial_q is not None else c.initial_q
+        if q_init is not None:
+            _finite_vector(q_init, "initial_q")
+        q0 = q_d0 if q_init is None else _vector(q_init, n, "initial_q")
         plant.SetPositions(plant_context, q0)
         plant.SetVelocities(plant_context, np.zeros(n))
         if c.true_theta is not None:
@@ -348,13 +474,13 @@ class ClosedLoop:
         steps = max(1, math.ceil(self.period / MAX_INTEGRATOR_STEP - 1e-9))
         ResetIntegratorFromFlags(simulator, "runge_kutta2", self.period / steps)
         wall0 = time.perf_counter()
-        diverged = False
+        integrator_error = None
         try:
             simulator.Initialize()
             simulator.AdvanceTo(duration)
-        except RuntimeError as exc:
-            diverged = True
-            err = str(exc)
+        except RuntimeError as exc:  # e.g. the integrator gave up on a blown-up state
+            text = str(exc).strip().splitlines()
+            integrator_error = text[0] if text else type(exc).__name__
         wall = time.perf_counter() - wall0
 
         logs = {k: v.FindLog(context) for k, v in self._logs.items()}
@@ -362,7 +488,11 @@ class ClosedLoop:
         X = logs["state"].data().T
         XD = logs["x_d"].data().T
         q, v = X[:, :n], X[:, n:]
-        if not np.all(np.isfinite(X)) or np.any(np.abs(X) > DIVERGENCE_LIMIT):
+        diverged, reason = is_diverged(t, q, v, XD[:, :n], error_limit=c.divergence_error)
+        if integrator_error is not None:
+            t_fail = context.get_time()
+            reason = (f"simulation failed at t = {t_fail:.4g} s: {integrator_error}"
+                      + (f"; {reason}" if reason else ""))
             diverged = True
         link_lengths = self.arm.link_lengths if len(self.arm.link_lengths) == 2 else None
         if diverged or len(t) < 2:
@@ -377,7 +507,7 @@ class ClosedLoop:
             u=logs["u"].data().T, tau=tau, metrics=metrics,
             torque_stats=torque_statistics(t, tau) if len(t) > 1 else {},
             sim_seconds=float(t[-1]) if len(t) else 0.0, wall_seconds=wall, diverged=diverged,
-            config=c.to_dict(), link_lengths=link_lengths,
+            config=c.to_dict(), link_lengths=link_lengths, divergence_reason=reason,
         )
         res.extra = {k: v.FindLog(context).data().T for k, v in self.extra_logs.items()}
         res.context = context

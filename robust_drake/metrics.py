@@ -38,6 +38,10 @@ def error_criteria(t, q, q_d, link_lengths=None, skip: float = 0.0, dt: float | 
     q_d = np.asarray(q_d, dtype=float)
     if q.shape != q_d.shape or q.ndim != 2 or q.shape[0] != t.shape[0]:
         raise RobustDrakeError(f"error_criteria: shapes t{t.shape}, q{q.shape}, q_d{q_d.shape} do not match")
+    if not (np.isfinite(skip) and skip >= 0):
+        raise RobustDrakeError(f"error_criteria: skip must be a finite number of seconds >= 0 (got {skip!r})")
+    if dt is not None and not (np.isfinite(dt) and dt > 0):
+        raise RobustDrakeError(f"error_criteria: dt must be a positive resampling interval [s] or None (got {dt!r})")
     keep = t >= t[0] + skip - 1e-12
     if keep.sum() < 2:
         raise RobustDrakeError(f"error_criteria: nothing left after skipping {skip} s of a {t[-1] - t[0]:.3f} s log")

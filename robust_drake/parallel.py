@@ -17,6 +17,15 @@ costs only the items running on it at that moment: each of them is rerun alone o
 pool, and the one that kills its worker again is recorded as failed. At most ``workers`` items are in flight, so a crash or
 Ctrl-C loses at most those.
 
+Orphans. Local workers exit when the process that started the pool dies, even by
+``kill -9``: each worker arms ``prctl(PR_SET_PDEATHSIG, SIGTERM)`` (Linux; fires when its
+parent dies) and runs a daemon watchdog thread that checks every
+:data:`WATCHDOG_SECONDS` that the pool's owner is still alive (its parent under
+``forkserver`` is the fork server, which itself only exits once every worker has closed its
+copy of the fork server's "alive" pipe). The first worker to see its owner dead removes the
+owner's multiprocessing temporary folder; the fork server and the resource tracker then
+see end-of-file on their pipes and exit too.
+
 >>> import math
 >>> from robust_drake.parallel import run_parallel
 >>> outcomes = run_parallel(math.sqrt, [1.0, 4.0, -1.0], workers=1, progress=False)
@@ -32,7 +41,10 @@ from __future__ import annotations
 import multiprocessing
 import os
 import pickle
+import shutil
+import signal
 import sys
+import threading
 import time
 import traceback
 from collections import deque
@@ -52,6 +64,91 @@ START_METHOD = "forkserver" if "forkserver" in multiprocessing.get_all_start_met
 #: Modules imported once in the fork server so every worker starts with them loaded
 #: (a failing import here is ignored by multiprocessing; the worker then imports lazily).
 FORKSERVER_PRELOAD = ["numpy", "pydrake.all", "robust_drake.diagram"]
+
+
+#: Seconds between two checks of a worker's watchdog that the pool's owner is alive.
+WATCHDOG_SECONDS = 0.5
+
+_PR_SET_PDEATHSIG = 1  # linux/prctl.h
+
+
+def _proc_start_time(pid: int):
+    """Start time of ``pid`` (clock ticks since boot, /proc/PID/stat field 22), None if
+    unknown; "dead" if the process is gone or a zombie."""
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as fh:
+            stat = fh.read().decode(errors="replace")
+    except FileNotFoundError:
+        return "dead"
+    except OSError:
+        return None
+    fields = stat[stat.rfind(")") + 2:].split()  # after "pid (comm) "
+    if not fields or fields[0] in ("Z", "X"):
+        return "dead"
+    return fields[19] if len(fields) > 19 else None
+
+
+def _owner_alive(pid: int, start_time) -> bool:
+    """Is the process ``pid`` that had ``start_time`` (see :func:`_proc_start_time`) alive?"""
+    now = _proc_start_time(pid)
+    if now == "dead":
+        return False
+    if now is not None:
+        return start_time is None or now == start_time  # else: the pid was reused
+    try:  # no /proc
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def _set_parent_death_signal() -> None:
+    """Linux: SIGTERM this process when its parent dies (no-op elsewhere)."""
+    if not sys.platform.startswith("linux"):
+        return
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(_PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0)
+    except Exception:  # pragma: no cover - the watchdog still covers it
+        pass
+
+
+def _watchdog(owner_pid: int, owner_start, parent_pid: int, tempdir: str | None) -> None:
+    while True:
+        time.sleep(WATCHDOG_SECONDS)
+        if os.getppid() != parent_pid or not _owner_alive(owner_pid, owner_start):
+            if tempdir and os.path.basename(tempdir).startswith("pymp-"):
+                shutil.rmtree(tempdir, ignore_errors=True)
+            os._exit(1)
+
+
+def _worker_init(owner_pid: int, owner_start, tempdir: str | None) -> None:
+    """Initializer of every local worker process: exit when the pool's owner dies."""
+    try:
+        parent = os.getppid()
+        _set_parent_death_signal()
+        if not _owner_alive(owner_pid, owner_start):
+            os._exit(1)
+        threading.Thread(target=_watchdog, args=(owner_pid, owner_start, parent, tempdir),
+                         name="robust_drake-orphan-watchdog", daemon=True).start()
+    except Exception:  # pragma: no cover - never break the pool over the watchdog
+        pass
+
+
+def _worker_initargs(ctx) -> tuple:
+    """(owner pid, its start time, its multiprocessing temp folder if it has one)."""
+    if ctx.get_start_method() == "forkserver":
+        import multiprocessing.util
+
+        multiprocessing.util.get_temp_dir()  # the fork server's socket goes there anyway
+    pid = os.getpid()
+    start = _proc_start_time(pid)
+    tempdir = multiprocessing.current_process()._config.get("tempdir")
+    return pid, (None if start == "dead" else start), tempdir
 
 
 @dataclass
@@ -273,7 +370,8 @@ def _iter_pool(func, items, keys, workers, start_method) -> Iterator[RunOutcome]
     suspects: deque = deque()  # were in flight, with others, when a worker process died
 
     while pending or suspects:
-        pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx)
+        pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx,
+                                   initializer=_worker_init, initargs=_worker_initargs(ctx))
         in_flight: dict = {}
         broken = False
         try:

@@ -323,7 +323,13 @@ def expand_product(spec: dict) -> list[Scenario]:
 def scenarios_from_records(records: Iterable[dict], defaults: dict | None = None) -> list[Scenario]:
     """Scenarios from a list of mappings (YAML ``scenarios:`` list or CSV rows)."""
     out = []
+    if not isinstance(records, (list, tuple)):
+        raise RobustDrakeError(f"'scenarios' must be a list of mappings, got {type(records).__name__}")
     for i, rec in enumerate(records):
+        if not isinstance(rec, dict):
+            raise RobustDrakeError(
+                f"scenario #{i + 1} must be a mapping of scenario fields (e.g. "
+                f"{{controller: sp1, load: max}}), got {type(rec).__name__} {rec!r}")
         d = dict(defaults or {})
         rec = dict(rec)
         for key in list(rec):
@@ -474,6 +480,13 @@ def validate_scenarios(scenarios: Iterable[Scenario]) -> None:
             problems.append(f"{where}: rate must be a positive number of Hz, got {s.rate!r}")
         if s.duration is not None and not (isinstance(s.duration, (int, float)) and s.duration > 0):
             problems.append(f"{where}: duration must be positive, got {s.duration!r}")
+        elif s.duration is not None and not problems:
+            from robust_drake.diagram import check_run_size
+
+            try:  # refuse a runaway size now, not once per worker
+                check_run_size(float(s.duration), float(s.rate))
+            except RobustDrakeError as exc:
+                problems.append(f"{where}: {exc}")
     if problems:
         uniq = list(dict.fromkeys(problems))
         more = f"\n... and {len(uniq) - 20} more" if len(uniq) > 20 else ""

@@ -47,6 +47,8 @@ def run(args) -> int:
         raise RobustDrakeError(f"--metric must be one of {', '.join(METRIC_KEYS)}")
     if args.workers is not None and args.workers < 1:
         raise RobustDrakeError("--workers must be >= 1")
+    if not args.out.strip():
+        raise RobustDrakeError("--out is empty; give a results file path ending in .parquet")
     scenarios, doc = load_spec(args.spec)
     if args.duration is not None:
         if not args.duration > 0:

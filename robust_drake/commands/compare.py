@@ -42,6 +42,8 @@ def run(args) -> int:
     from robust_drake.experiments import jaritz_spong as js
     from robust_drake.registry import names
 
+    if args.plot is not None and not args.plot.strip():
+        raise RobustDrakeError("--plot is empty; give a file or folder path")
     tables = _tables(args.table)
     controllers = [c.strip() for c in args.controllers.split(",") if c.strip()]
     known = names("controller")

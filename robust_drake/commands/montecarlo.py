@@ -39,7 +39,8 @@ def register(sub):
     p.add_argument("--metric", default="maxerr_task",
                    help="metric for the percentiles and plots (default maxerr_task)")
     p.add_argument("--out", default=None,
-                   help="results Parquet (default out/montecarlo_<robot>.parquet); resumable")
+                   help="results Parquet (default out/montecarlo_<robot>.parquet); resumable; the "
+                        "box plot goes beside it unless --plot is given")
     p.add_argument("--workers", type=int, default=None, help="local worker processes")
     p.add_argument("--scheduler", default=None, metavar="ADDRESS", help="Dask scheduler address")
     p.add_argument("--force", action="store_true", help="overwrite --out of another study")
@@ -51,12 +52,17 @@ def register(sub):
 def run(args) -> int:
     import numpy as np
 
+    import pathlib
+
     from robust_drake.batch import METRIC_KEYS
     from robust_drake.montecarlo import (boxplot, draw_d2r2, draw_imi, load_ellipsoid,
                                          montecarlo_scenarios, percentile_table, run_montecarlo)
 
     if args.metric not in METRIC_KEYS:
         raise RobustDrakeError(f"--metric must be one of {', '.join(METRIC_KEYS)}")
+    for flag, value in (("--out", args.out), ("--plot", args.plot)):
+        if value is not None and not value.strip():
+            raise RobustDrakeError(f"{flag} is empty; give a file path")
     controllers = [c.strip() for c in args.controllers.split(",") if c.strip()]
     if not controllers:
         raise RobustDrakeError("--controllers is empty")
@@ -85,7 +91,10 @@ def run(args) -> int:
                 seed=args.seed)
     scenarios = montecarlo_scenarios(args.robot, controllers, thetas, base=base, tags=tags)
     out = args.out or f"out/montecarlo_{args.robot}.parquet"
-    plot = args.plot or f"out/montecarlo_{args.robot}_{args.metric}.png"
+    # Every file goes beside --out (or to --plot): nothing lands in the working directory
+    # unless the user's own paths say so.
+    out_path = pathlib.Path(out)
+    plot = args.plot or str(out_path.with_name(f"{out_path.stem}_{args.metric}.png"))
     if not args.json:
         print(f"{len(controllers)} controllers x {len(thetas)} draws over the {set_desc} "
               f"-> {out}", file=sys.stderr)

@@ -29,6 +29,8 @@ def register(sub):
 def run(args) -> int:
     from robust_drake.diagram import ClosedLoopConfig, simulate
 
+    if args.plot is not None and not args.plot.strip():
+        raise RobustDrakeError("--plot is empty; give a file or folder path")
     if not args.rate > 0:
         raise RobustDrakeError(f"--rate must be positive (got {args.rate})")
     skip = args.skip if args.skip is not None else (1.0 if args.trajectory == "circle" else 0.0)
@@ -49,7 +51,7 @@ def run(args) -> int:
     else:
         print(f"{args.controller} on {args.robot} (load {args.load}), {args.trajectory}, {args.rate:g} Hz, "
               f"{res.sim_seconds:.2f} s simulated in {res.wall_seconds:.2f} s"
-              + ("  ** DIVERGED **" if res.diverged else ""))
+              + (f"  ** DIVERGED: {res.divergence_reason} **" if res.diverged else ""))
         print(format_table([[out[k] for k in METRIC_KEYS]],
                            ["|error1| rad", "maxerr1 rad", "|error2| rad", "maxerr2 rad", "|error_task| m", "maxerr_task m"]))
         if args.plot:

@@ -43,6 +43,8 @@ def run(args) -> int:
     from robust_drake.experiments import jaritz_spong as js
     from robust_drake.registry import names
 
+    if args.plot is not None and not args.plot.strip():
+        raise RobustDrakeError("--plot is empty; give a file or folder path")
     controllers = [c.strip() for c in args.controllers.split(",") if c.strip()]
     bad = [c for c in controllers if c not in names("controller")]
     if bad or not controllers:

@@ -145,7 +145,8 @@ def run_one(spec: dict) -> dict:
     res = simulate(config_for(spec))
     row = {k: spec[k] for k in ("table", "controller", "load", "friction_compensation", "trajectory", "rate", "observer")}
     row.update({k: float(res.metrics[k]) for k in METRIC_KEYS})
-    row.update(diverged=bool(res.diverged), wall_seconds=float(res.wall_seconds),
+    row.update(diverged=bool(res.diverged), divergence_reason=res.divergence_reason,
+               wall_seconds=float(res.wall_seconds),
                sim_seconds=float(res.sim_seconds),
                tau_tv_per_s=list(res.torque_stats.get("tau_tv_per_s", [])),
                tau_peak=list(res.torque_stats.get("tau_peak", [])))
