@@ -59,7 +59,8 @@ def lemma1(kappa01, kappa02, delta=1.0, n=2) -> Certificate:
     """Lemma 1: calA + delta I Hurwitz for all delta iff (16). Returns max Re(eig) for the given
     delta and for A0 + I (the delta-free statement: eig(A + delta I) = delta eig(A0 + I))."""
     calA, _, _ = big_system(kappa01, kappa02, delta, n)
-    lam = np.linalg.eigvals(calA + delta * np.eye(2 * n))
+    Ad = calA + delta * np.eye(2 * n)
+    lam, kappa = eig_condition(Ad)
     lam0 = np.linalg.eigvals(A0_matrix(kappa01, kappa02) + np.eye(2))
     ok = bool(np.max(lam.real) < 0 and np.max(lam0.real) < 0)
     return Certificate(1, ok, {
@@ -67,6 +68,8 @@ def lemma1(kappa01, kappa02, delta=1.0, n=2) -> Certificate:
         "max_real_eig_A0_plus_I": float(np.max(lam0.real)),
         "conditions16": conditions16(kappa01, kappa02),
         "scaling_error": float(np.max(np.abs(np.sort_complex(lam) - np.sort_complex(np.tile(delta * lam0, n))))),
+        # eigenvalues are accurate to eps kappa(lambda) ||Ad|| (both sides: factor 2)
+        "scaling_tol": 2 * certificate_tol(float(np.max(kappa))) * float(np.linalg.norm(Ad)),
     })
 
 
