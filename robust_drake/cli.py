@@ -94,6 +94,36 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def glue_negative_values(parser, argv: list[str]) -> list[str]:
+    """``--gains -25,5`` -> ``--gains=-25,5``: argparse takes a value that starts with '-' and is not a
+    plain negative number (here a comma list) for an option and fails with "expected one argument".
+    Only options that take a value are glued, so flags keep their meaning; nothing after ``--``."""
+    import re
+
+    takes_value = set()
+    stack = [parser]
+    while stack:
+        p = stack.pop()
+        for a in p._actions:
+            if isinstance(a, argparse._SubParsersAction):
+                stack.extend(a.choices.values())
+            elif a.option_strings and a.nargs != 0:
+                takes_value.update(o for o in a.option_strings if o.startswith("--"))
+    out, i = [], 0
+    while i < len(argv):
+        a = argv[i]
+        if a == "--":
+            out.extend(argv[i:])
+            break
+        if a in takes_value and i + 1 < len(argv) and re.match(r"^-[0-9.]", argv[i + 1]):
+            out.append(f"{a}={argv[i + 1]}")
+            i += 2
+            continue
+        out.append(a)
+        i += 1
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     # Before numpy loads (the command modules import it lazily): single-threaded BLAS is far
     # faster for this package's many small solves; set OPENBLAS_NUM_THREADS to override.
@@ -101,7 +131,7 @@ def main(argv: list[str] | None = None) -> int:
 
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args = parser.parse_args(glue_negative_values(parser, sys.argv[1:] if argv is None else list(argv)))
     try:
         status = args.func(args)
     except RobustDrakeError as exc:

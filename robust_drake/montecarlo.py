@@ -122,7 +122,7 @@ def load_ellipsoid(path) -> tuple[np.ndarray, np.ndarray]:
     m = theta0.size
     if P.shape != (m, m):
         raise RobustDrakeError(f"{path}: P must be {m}x{m} for theta0 of length {m}, got {P.shape}")
-    if not np.allclose(P, P.T, atol=1e-9 * max(1.0, np.abs(P).max())):
+    if not __import__("robust_drake.analysis.tolerance", fromlist=["is_symmetric"]).is_symmetric(P):
         raise RobustDrakeError(f"{path}: P is not symmetric")
     if np.linalg.eigvalsh(0.5 * (P + P.T))[0] <= 0:
         raise RobustDrakeError(f"{path}: P is not positive definite")

@@ -94,9 +94,53 @@ def test_certificate_catches_a_too_small_ellipsoid_and_unbounded_sets_fail():
     small = Ellipsoid(r.theta0, 0.25 * r.P)
     c = certify(M, small, 1000)
     assert c["inside"] < c["tested"] and c["max_radius"] > 1.0
-    # one equation, two unknowns: the LS solution set is unbounded, no ellipsoid exists
-    with pytest.raises(SolverError):
+    # one equation, two unknowns: the LS solution set is unbounded, no ellipsoid exists; refused
+    # before the SDP with the reason, and a solver handed the SDP anyway fails loudly (SolverError)
+    with pytest.raises(RobustDrakeError, match="rank 1 < 2 parameters"):
         solve_ellipsoid(_toy(K=1), formulation="chordal")
+    from robust_drake.identification.ellipsoid import _scaled_model, _solve_cvxpy, build_chordal_sdp
+
+    data = build_chordal_sdp(_scaled_model(_toy(K=1))[0], np.ones(2))
+    with pytest.raises(SolverError):
+        _solve_cvxpy(data, "clarabel")
+
+
+def test_symmetry_and_containment_tolerances_follow_the_scale_of_P():
+    """Symmetry is checked to rounding relative to |P| (the old absolute 1e-9 floor accepted a 10 %
+    asymmetric P whose entries are ~1e-8); the containment tolerance is the SDP accuracy plus rounding."""
+    P = 1e-8 * np.array([[2.0, 0.1], [0.0, 1.0]])
+    with pytest.raises(RobustDrakeError, match="symmetric"):
+        Ellipsoid(np.zeros(2), P)
+    S = 1e-8 * np.array([[2.0, 0.1], [0.1, 1.0]])
+    S[0, 1] *= 1 + 1e-15  # rounding-level asymmetry is accepted
+    Ellipsoid(np.zeros(2), S)
+    with pytest.raises(RobustDrakeError, match="finite"):
+        Ellipsoid(np.zeros(2), np.array([[1.0, 0.0], [0.0, np.nan]]))
+    M = _toy()
+    r = solve_ellipsoid(M, formulation="chordal", certify_draws=200)
+    assert 1e-5 <= r.certificate["tol"] < 2e-5
+    # an ellipsoid shrunk by 1e-3 in radius is caught, i.e. the tolerance does not hide real misses
+    tight = Ellipsoid(r.theta0, r.P * (r.certificate["max_radius"] * (1 - 1e-3)) ** 2)
+    c = certify(M, tight, 200)
+    assert c["inside"] < c["tested"]
+    with pytest.raises(RobustDrakeError, match="draws"):
+        certify(M, tight, 0)
+
+
+@pytest.mark.parametrize("argv,message", [
+    (["ellipsoid", "--draws", "0"], "--draws must be >= 1"),
+    (["ellipsoid", "--draws", "-5"], "--draws must be >= 1"),
+    (["ellipsoid", "--backend", "cvxpy", "--samples", "1"], "rank 2 < 8 parameters"),
+    (["ellipsoid", "--save", "{tmp}"], "is a directory"),
+    (["ellipsoid", "--save", "{tmp}/missing/e.json"], "does not exist"),
+])
+def test_cli_one_line_errors(argv, message, tmp_path, capsys):
+    from robust_drake.cli import main
+
+    argv = [a.replace("{tmp}", str(tmp_path)) for a in argv]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error: ") and "\n" not in err and message in err, err
 
 
 def test_ellipsoid_json_roundtrip(tmp_path):

@@ -263,15 +263,22 @@ def test_lg_plus_beats_lg_on_the_loaded_arm(cpt):
     assert plus["error1"] < lg["error1"], (plus["error1"], lg["error1"])
 
 
-def test_zc_guarantee_is_loose_for_the_papers_epsilon():
-    """Eqs. 24, 26, 27 with K = diag(30, 10), Lambda = diag(50, 20): alpha < 10 / 1.3254 and the
-    tolerance for epsilon = 25 is s = sqrt(25 * 1.3254 / (10 * 0.0276)) / alpha."""
+def test_zc_guarantee_holds_and_is_loose_on_the_cpt(cpt):
+    """ZC is an s-alpha tracking controller (section 8, Zenieh & Corless): the error converges at rate
+    alpha to within the tolerance s allowed by eqs. 24, 26, 27. The CPT starts on the trajectory, so the
+    simulated joint errors must stay below s throughout; and the paper blames ZC's conservatism
+    (section 9): the guarantee is loose, the measured error a small fraction of s."""
     from robust_drake.systems.controllers.zenieh_corless import zc_guarantee
 
     g = zc_guarantee(epsilon=25.0)
-    assert g["alpha_max"] == pytest.approx(10 / 1.3254)
-    assert g["s"] == pytest.approx(math.sqrt(25 * 1.3254 / (10 * 0.0276)) * 1.3254 / 10)
-    assert zc_guarantee(epsilon=45.0)["s"] > g["s"]  # the circle's larger epsilon loosens it
+    alpha, s = g["alpha_max"], g["s"]
+    # the returned pair satisfies the paper's inequalities with K = diag(30, 10), Lambda = diag(50, 20):
+    assert alpha <= 20.0                                              # (24) lambda_min(Lambda) >= alpha
+    assert 10.0 >= alpha * BETA1 * (1 - 1e-12)                        # (26) lambda_min(K) > alpha beta1 (limit)
+    assert 25.0 <= (alpha * s) ** 2 * 10.0 * BETA0 / BETA1 * (1 + 1e-12)  # (27) epsilon admissible at s
+    assert 25.0 > (alpha * 0.99 * s) ** 2 * 10.0 * BETA0 / BETA1       # ... and s is the smallest such
+    worst = max(max(rows["zc"]["maxerr1"], rows["zc"]["maxerr2"]) for rows in cpt.values())
+    assert worst < 0.1 * s, (worst, s)
 
 
 def test_a_failed_run_is_reported_and_the_others_complete():

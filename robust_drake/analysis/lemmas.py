@@ -20,11 +20,13 @@ from robust_drake.analysis.norms import hinf_norm_hamiltonian, hinf_norm_lmi
 from robust_drake.analysis.riccati import (
     B2,
     A0_matrix,
+    are_certificate,
     are_residual,
     bounded_real_are_hamiltonian,
     conditions16,
     eq17_data,
 )
+from robust_drake.analysis.tolerance import SDP_RTOL, certificate_tol, eig_condition
 from robust_drake.errors import RobustDrakeError, SolverError
 
 
@@ -57,7 +59,8 @@ def lemma1(kappa01, kappa02, delta=1.0, n=2) -> Certificate:
     """Lemma 1: calA + delta I Hurwitz for all delta iff (16). Returns max Re(eig) for the given
     delta and for A0 + I (the delta-free statement: eig(A + delta I) = delta eig(A0 + I))."""
     calA, _, _ = big_system(kappa01, kappa02, delta, n)
-    lam = np.linalg.eigvals(calA + delta * np.eye(2 * n))
+    Ad = calA + delta * np.eye(2 * n)
+    lam, kappa = eig_condition(Ad)
     lam0 = np.linalg.eigvals(A0_matrix(kappa01, kappa02) + np.eye(2))
     ok = bool(np.max(lam.real) < 0 and np.max(lam0.real) < 0)
     return Certificate(1, ok, {
@@ -65,10 +68,12 @@ def lemma1(kappa01, kappa02, delta=1.0, n=2) -> Certificate:
         "max_real_eig_A0_plus_I": float(np.max(lam0.real)),
         "conditions16": conditions16(kappa01, kappa02),
         "scaling_error": float(np.max(np.abs(np.sort_complex(lam) - np.sort_complex(np.tile(delta * lam0, n))))),
+        # eigenvalues are accurate to eps kappa(lambda) ||Ad|| (both sides: factor 2)
+        "scaling_tol": 2 * certificate_tol(float(np.max(kappa))) * float(np.linalg.norm(Ad)),
     })
 
 
-def lemma2(kappa01, kappa02, delta=1.0, n=2, solver="clarabel", rtol=1e-5) -> Certificate:
+def lemma2(kappa01, kappa02, delta=1.0, n=2, solver="clarabel", rtol=SDP_RTOL) -> Certificate:
     """Lemma 2: ||T_delta||_inf = ||t||_inf, t(s) = B^T A0 [sI - (A0 + I)]^{-1} B.
 
     ||t||_inf two ways (Hamiltonian bisection, KYP LMI) and ||T_delta||_inf of the n-joint MIMO
@@ -85,29 +90,41 @@ def lemma2(kappa01, kappa02, delta=1.0, n=2, solver="clarabel", rtol=1e-5) -> Ce
     except SolverError as exc:  # pragma: no cover - reported, not hidden
         tl = float("nan")
     calA, calB, calC = big_system(kappa01, kappa02, delta, n)
-    Th = hinf_norm_hamiltonian(calA + delta * np.eye(2 * n), calB, -calC)
-    ok = bool(abs(th.norm - tl) <= rtol * th.norm and abs(th.norm - Th.norm) <= 1e-8 * th.norm)
+    Ad = calA + delta * np.eye(2 * n)
+    Th = hinf_norm_hamiltonian(Ad, calB, -calC)
+    # Both norms are bisection results (relative bracket width 1e-10 each) of a quantity whose
+    # rounding sensitivity is cond(j w_peak I - Ad) (the resolvent at the peak).
+    w = Th.omega_peak
+    cond_peak = np.linalg.cond(1j * w * np.eye(2 * n) - Ad)
+    tol_T = 2 * (Th.upper - Th.lower) / Th.upper + 2 * (th.upper - th.lower) / th.upper + certificate_tol(cond_peak)
+    ok = bool(abs(th.norm - tl) <= rtol * th.norm and abs(th.norm - Th.norm) <= tol_T * th.norm)
     return Certificate(2, ok, {
         "t_norm_hamiltonian": th.norm, "t_norm_lmi": tl, "T_delta_norm": Th.norm,
+        "T_vs_t_rel_diff": abs(th.norm - Th.norm) / th.norm, "T_vs_t_tol": tol_T,
         "omega_peak_t": th.omega_peak, "omega_peak_T": Th.omega_peak,
         "gamma_max": 1.0 / th.norm,
     })
 
 
-def lemma3(kappa01, kappa02, delta=1.0, n=2, tol=1e-9) -> Certificate:
+def lemma3(kappa01, kappa02, delta=1.0, n=2) -> Certificate:
     """Lemma 3: (calA + delta I, calC) observable iff kappa01 != 0.
 
     PBH test: ``min over eigenvalues lambda of sigma_min([lambda I - Ad; calC])``, scaled by
-    ``||Ad|| + ||calC||`` (the Kalman observability matrix is too ill-conditioned to rank)."""
+    ``||Ad|| + ||calC||`` (the Kalman observability matrix is too ill-conditioned to rank).
+    Rank decision to rounding: a computed eigenvalue is off by ``eps kappa(lambda) ||Ad||``, which
+    moves sigma_min by as much, so the pair is observable when the scaled sigma_min exceeds
+    ``certificate_tol(max kappa(lambda))`` (``analysis.tolerance``)."""
     calA, _, calC = big_system(kappa01, kappa02, delta, n)
     Ad = calA + delta * np.eye(2 * n)
     scale = np.linalg.norm(Ad, 2) + np.linalg.norm(calC, 2)
     worst = np.inf
-    for lam in np.linalg.eigvals(Ad):
+    lams, kappa = eig_condition(Ad)
+    for lam in lams:
         M = np.vstack([lam * np.eye(2 * n) - Ad, calC])
         worst = min(worst, np.linalg.svd(M, compute_uv=False)[-1])
     rel = float(worst / scale)
-    return Certificate(3, bool(rel > tol), {"pbh_sigma_min_rel": rel})
+    tol = certificate_tol(float(np.max(kappa)))
+    return Certificate(3, bool(rel > tol), {"pbh_sigma_min_rel": rel, "tol": tol})
 
 
 def lemma4(kappa01, kappa02, delta, gamma, n=2) -> Certificate:
@@ -116,22 +133,37 @@ def lemma4(kappa01, kappa02, delta, gamma, n=2) -> Certificate:
     calA, calB, calC = big_system(kappa01, kappa02, delta, n)
     Ad = calA + delta * np.eye(2 * n)
     try:
-        Pfull = bounded_real_are_hamiltonian(Ad, calB, calC, gamma)
+        Pfull, cond_full = bounded_real_are_hamiltonian(Ad, calB, calC, gamma, with_cond=True)
         A, B, C = eq17_data(kappa01, kappa02)
-        P0 = bounded_real_are_hamiltonian(A, B, C, gamma)
+        P0, cond0 = bounded_real_are_hamiltonian(A, B, C, gamma, with_cond=True)
     except SolverError as exc:
         return Certificate(4, False, {"reason": str(exc)})
     Bb = np.diag([delta, 1.0])
     Pi = delta * Bb @ P0 @ Bb
     Pblock = scipy.linalg.block_diag(*([Pi] * n))
+    return lemma4_compare(Ad, calB, calC, gamma, Pfull, cond_full, Pblock, cond0 * np.linalg.cond(Bb) ** 2,
+                          conditions16(kappa01, kappa02), Pi)
+
+
+def lemma4_compare(Ad, calB, calC, gamma, Pfull, cond_full, Pblock, cond_block, ok16, Pi=None) -> Certificate:
+    """The decision of :func:`lemma4` for given matrices (so a test can hand it a wrong P).
+
+    ``Pfull`` and ``Pblock`` are two computed solutions of eq. 18, accurate to
+    ``certificate_tol(cond_full)`` and ``certificate_tol(cond_block)`` relative (condition numbers
+    of the Hamiltonian-Schur solves, ``tolerance.schur_are_condition``); they agree when their
+    relative difference is within the sum. Pblock must also pass the residual certificate of
+    eq. 18 (``riccati.are_certificate``: Newton step from the residual), and the stabilising solution must be PSD (Lemma 5, needs eq. 16)."""
     err = float(np.linalg.norm(Pfull - Pblock) / np.linalg.norm(Pfull))
-    res18 = are_residual(Ad, calB, calC, gamma, Pblock) / max(1.0, np.linalg.norm(calC.T @ calC))
+    tol = certificate_tol(cond_full) + certificate_tol(cond_block)
+    res = are_certificate(Ad, calB, calC, gamma, Pblock, max(cond_full, cond_block))
     min_eig = float(np.min(np.linalg.eigvalsh(Pfull)))
-    ok16 = conditions16(kappa01, kappa02)
     # The block identity is algebraic; the lemma is about the PSD stabilising solution, which needs (16).
-    return Certificate(4, bool(err < 1e-8 and ok16 and min_eig >= 0), {
-        "rel_diff": err, "eq18_residual_rel": float(res18), "min_eig_P": min_eig,
-        "conditions16": ok16, "Pi": Pi.tolist()})
+    ok = bool(err <= tol and res["ok"] and ok16 and min_eig >= -certificate_tol() * np.linalg.norm(Pfull, 2))
+    return Certificate(4, ok, {
+        "rel_diff": err, "tol": tol, "cond_full": float(cond_full), "cond_block": float(cond_block),
+        "eq18_newton_step_rel": res["newton_step_rel"], "eq18_backward_error": res["backward_error"],
+        "eq18_tol": res["tol"], "min_eig_P": min_eig,
+        "conditions16": bool(ok16), "Pi": (Pi if Pi is not None else Pblock[:2, :2]).tolist()})
 
 
 def lemma5(kappa01, kappa02, gamma) -> Certificate:
@@ -143,15 +175,18 @@ def lemma5(kappa01, kappa02, gamma) -> Certificate:
     A, B, C = eq17_data(kappa01, kappa02)
     tn = hinf_norm_hamiltonian(A, B, C).norm
     try:
-        P0 = bounded_real_are_hamiltonian(A, B, C, gamma)
+        P0, cond = bounded_real_are_hamiltonian(A, B, C, gamma, with_cond=True)
     except SolverError as exc:
         return Certificate(5, False, {"t_norm_times_gamma": tn * gamma, "reason": str(exc)})
     eig = np.linalg.eigvalsh(P0)
     cl = np.max(np.linalg.eigvals(A + gamma**2 * B @ B.T @ P0).real)
-    ok = bool(tn * gamma <= 1.0 and eig[0] > 1.0 and cl < 0)
+    res = are_certificate(A, B, C, gamma, P0, cond)
+    ok = bool(tn * gamma <= 1.0 and eig[0] > 1.0 and cl < 0 and res["ok"])
     return Certificate(5, ok, {"eig_P0": eig.tolist(), "t_norm_times_gamma": tn * gamma,
                                "closed_loop_abscissa": float(cl),
-                               "residual": are_residual(A, B, C, gamma, P0)})
+                               "residual": are_residual(A, B, C, gamma, P0),
+                               "newton_step_rel": res["newton_step_rel"], "backward_error": res["backward_error"],
+                               "residual_tol": res["tol"]})
 
 
 def check_all(kappa01, kappa02, delta, gamma, n=2, solver="clarabel") -> dict:

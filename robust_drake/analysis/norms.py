@@ -26,6 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from robust_drake.analysis.tolerance import certificate_tol, on_imaginary_axis
 from robust_drake.errors import RobustDrakeError, SolverError
 
 
@@ -60,8 +61,16 @@ def frequency_response_gain(A, B, C, D, omega):
     return out
 
 
-def hamiltonian_has_imaginary_eigs(A, B, C, D, gamma, tol=1e-8):
-    """True if ``H(gamma)`` (module docstring) has an eigenvalue with |Re| <= tol * scale."""
+def hamiltonian_has_imaginary_eigs(A, B, C, D, gamma):
+    """True if ``H(gamma)`` (module docstring) has an eigenvalue on the imaginary axis, i.e. if
+    ``sigma_max(G(j w)) >= gamma`` somewhere.
+
+    Decided to rounding (``analysis.tolerance``): candidates are the eigenvalues with
+    ``|Re lambda| <= 10 eps kappa(lambda) ||H||``; near the peak the two crossing eigenvalues
+    form a Jordan pair (kappa -> inf), so a candidate is confirmed by evaluating the gain at its
+    frequency and at the midpoints between candidate frequencies (the gain exceeds gamma between
+    two crossings): confirmed if ``sigma_max >= gamma (1 - certificate_tol(cond(j w I - A)))``.
+    """
     A, B, C, D = _as_ss(A, B, C, D)
     m = B.shape[1]
     p = C.shape[0]
@@ -74,9 +83,16 @@ def hamiltonian_has_imaginary_eigs(A, B, C, D, gamma, tol=1e-8):
             [-C.T @ (np.eye(p) + D @ Ri @ D.T) @ C, -Ah.T],
         ]
     )
-    lam = np.linalg.eigvals(H)
-    scale = max(1.0, np.max(np.abs(lam)))
-    return bool(np.any(np.abs(lam.real) <= tol * scale)), lam
+    on_axis, lam = on_imaginary_axis(H)
+    if not np.any(on_axis):
+        return False, lam
+    w = np.unique(np.abs(lam[on_axis].imag))
+    w = np.concatenate([w, 0.5 * (w[1:] + w[:-1])])
+    n = A.shape[0]
+    for wk, g in zip(w, frequency_response_gain(A, B, C, D, w)):
+        if g >= gamma * (1.0 - certificate_tol(np.linalg.cond(1j * wk * np.eye(n) - A))):
+            return True, lam
+    return False, lam
 
 
 @dataclass

@@ -32,6 +32,8 @@ import numpy as np
 import scipy.linalg
 
 from robust_drake.analysis.norms import hinf_norm_hamiltonian, solve_program, sym_basis, sym_from_vec
+from robust_drake.analysis.tolerance import (are_backward_error, certificate_tol, on_imaginary_axis,
+                                            schur_are_condition)
 from robust_drake.errors import RobustDrakeError, SolverError
 
 B2 = np.array([[0.0], [1.0]])
@@ -59,20 +61,22 @@ def are_residual(A, B, C, gamma, P) -> float:
     return float(np.linalg.norm(R))
 
 
-def bounded_real_are_hamiltonian(A, B, C, gamma: float, tol: float = 1e-9) -> np.ndarray:
+def bounded_real_are_hamiltonian(A, B, C, gamma: float, with_cond: bool = False):
     """Stabilising solution of (*) from the stable invariant subspace of its Hamiltonian.
 
     Raises :class:`SolverError` when the Hamiltonian has imaginary-axis eigenvalues
-    (``||C (sI - A)^{-1} B||_inf >= 1/gamma``: no stabilising solution).
+    (``||C (sI - A)^{-1} B||_inf >= 1/gamma``: no stabilising solution). "On the axis" is decided
+    to rounding, ``|Re lambda| <= 10 eps kappa(lambda) ||H||`` (``analysis.tolerance``).
+    With ``with_cond`` returns ``(P, cond)``, ``cond`` the condition number of the Schur solve
+    (``tolerance.schur_are_condition``): P is accurate to ``certificate_tol(cond)`` relative.
     """
     A = np.atleast_2d(np.asarray(A, float))
     B = np.asarray(B, float).reshape(A.shape[0], -1)
     C = np.asarray(C, float).reshape(-1, A.shape[0])
     n = A.shape[0]
     H = np.block([[A, gamma**2 * B @ B.T], [-C.T @ C, -A.T]])
-    lam = np.linalg.eigvals(H)
-    scale = max(1.0, np.max(np.abs(lam)))
-    if np.min(np.abs(lam.real)) <= tol * scale:
+    on_axis, _ = on_imaginary_axis(H)
+    if np.any(on_axis):
         raise SolverError(
             f"no stabilising Riccati solution for gamma = {gamma:.6g}: the Hamiltonian has "
             "eigenvalues on the imaginary axis (||t||_inf >= 1/gamma); lower gamma"
@@ -82,7 +86,34 @@ def bounded_real_are_hamiltonian(A, B, C, gamma: float, tol: float = 1e-9) -> np
         raise SolverError(f"Hamiltonian stable subspace has dimension {sdim}, expected {n}")
     X1, X2 = Z[:n, :n], Z[n:, :n]
     P = np.linalg.solve(X1.T, X2.T).T  # X2 X1^{-1}
-    return 0.5 * (P + P.T)
+    P = 0.5 * (P + P.T)
+    if with_cond:
+        return P, schur_are_condition(T, Z, n)
+    return P
+
+
+def are_certificate(A, B, C, gamma, P, cond: float) -> dict:
+    """Residual certificate of (*) at P, as a forward-error estimate.
+
+    The residual R(P) is turned into the Newton correction X of P, ``Acl^T X + X Acl = -R(P)``
+    with ``Acl = A + gamma^2 B B^T P`` (the first-order error of P), and ``||X|| / ||P||`` is
+    compared with ``certificate_tol(cond)``, the accuracy the solve can have (``cond`` from
+    :func:`bounded_real_are_hamiltonian`). P must also be stabilising (Acl Hurwitz). The normwise
+    backward error ``||R|| / (||C^T C|| + 2 ||A|| ||P|| + gamma^2 ||B B^T|| ||P||^2)`` is reported
+    too; alone it misses errors along directions where the equation is flat (P scaled by 1 + e)."""
+    A = np.atleast_2d(np.asarray(A, float))
+    B = np.asarray(B, float).reshape(A.shape[0], -1)
+    C = np.asarray(C, float).reshape(-1, A.shape[0])
+    P = np.asarray(P, float)
+    G = gamma**2 * B @ B.T
+    R = A.T @ P + P @ A + P @ G @ P + C.T @ C
+    Acl = A + G @ P
+    stabilising = bool(np.max(np.linalg.eigvals(Acl).real) < 0)
+    X = scipy.linalg.solve_continuous_lyapunov(Acl.T, -R)
+    step = float(np.linalg.norm(X) / np.linalg.norm(P))
+    tol = certificate_tol(cond)
+    return {"newton_step_rel": step, "backward_error": are_backward_error(A, G, C.T @ C, P, float(np.linalg.norm(R))),
+            "tol": tol, "stabilising": stabilising, "ok": bool(stabilising and step <= tol)}
 
 
 def bounded_real_are_sdp(A, B, C, gamma: float, solver: str = "clarabel") -> np.ndarray:
@@ -203,12 +234,14 @@ class RiccatiDesign:
     P: np.ndarray  # (2n x 2n) in the original e = (q~, q~dot) ordering
     BtP: np.ndarray  # (n x 2n): z = BtP @ e
     notes: list = field(default_factory=list)
+    certificate: dict = field(default_factory=dict)  # are_certificate of P0
 
     def to_dict(self):
         return {
             "kp": self.kp, "kd": self.kd, "delta": self.delta, "kappa01": self.kappa01,
             "kappa02": self.kappa02, "gamma": self.gamma, "gamma_max": self.gamma_max,
             "t_norm": self.t_norm, "P0": self.P0.tolist(), "residual": self.residual,
+            "residual_certificate": self.certificate,
             "Pi": self.Pi.tolist(), "P0_eigs": np.linalg.eigvalsh(self.P0).tolist(),
         }
 
@@ -256,12 +289,16 @@ def design_riccati(K_P, K_D, alpha: float | None = None, delta: float | None = N
             f"gamma = {gamma:.4g} >= gamma_max = 1/||t||_inf = {gmax:.4g} for delta = {delta:.4g}: "
             "no stabilising solution of eq. 17; lower delta or gamma"
         )
-    P0 = solve_eq17(k01, k02, gamma)
     A, B, C = eq17_data(k01, k02)
+    P0, cond = bounded_real_are_hamiltonian(A, B, C, gamma, with_cond=True)
     res = are_residual(A, B, C, gamma, P0)
+    cert = are_certificate(A, B, C, gamma, P0, cond)
+    if not cert["ok"]:
+        raise SolverError(f"eq. 17 solve is not accurate: Newton step {cert['newton_step_rel']:.3g} of ||P0|| > "
+                          f"tolerance {cert['tol']:.3g} (condition number {cond:.3g})")
     Bb = np.diag([delta, 1.0])
     Pi = delta * Bb @ P0 @ Bb
     P = block_P_in_e_order(Pi, n)
     Bfull = np.vstack([np.zeros((n, n)), np.eye(n)])
     return RiccatiDesign(kp, kd, n, float(delta), k01, k02, float(gamma), gmax, tn, P0, res, Pi, P,
-                         Bfull.T @ P, notes)
+                         Bfull.T @ P, notes, cert)

@@ -7,13 +7,13 @@ from robust_drake.errors import RobustDrakeError
 
 
 def _gains(text):
+    from robust_drake.experiments.bascetta import check_gains
+
     try:
         kp, kd = (float(x) for x in text.split(","))
     except ValueError:
         raise RobustDrakeError(f"--gains must be 'KP,KD' (two numbers), got {text!r}") from None
-    if kp <= 0 or kd <= 0:
-        raise RobustDrakeError("--gains must be positive")
-    return kp, kd
+    return check_gains((kp, kd))
 
 
 def register(sub):
@@ -22,7 +22,8 @@ def register(sub):
                                    "Siciliano two-link arm, check Lemmas 1-5, simulate both on the trapezoidal "
                                    "Cartesian line with a perturbed model, and report beta, the energy of w, rho "
                                    "and the tracking errors.")
-    p.add_argument("--gains", default="25,5", help="K_P,K_D for both joints (default 25,5; the paper also uses 100,10)")
+    p.add_argument("--gains", default="25,5", help="K_P,K_D for both joints (default 25,5; the paper also uses 100,10); "
+                                                   "both must be positive")
     p.add_argument("--duration", type=float, default=None, help="simulated time [s] (default: the trajectory's)")
     p.add_argument("--boundary", type=float, default=0.01,
                    help="boundary-layer width of z/||z|| in error units (default 0.01)")

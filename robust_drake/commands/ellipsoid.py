@@ -60,6 +60,19 @@ def _read_csv(path):
     return {s: df[c].to_numpy(float) for s, c in cols.items()} | {"theta_true": None}
 
 
+def check_save_path(path) -> None:
+    """Refuse a --save target that cannot be written, before the (long) computation."""
+    import os
+
+    if os.path.isdir(path):
+        raise RobustDrakeError(f"--save {path}: is a directory; give a file name such as {os.path.join(path, 'ellipsoid.json')}")
+    parent = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(parent):
+        raise RobustDrakeError(f"--save {path}: folder {parent} does not exist")
+    if not os.access(parent, os.W_OK) or (os.path.exists(path) and not os.access(path, os.W_OK)):
+        raise RobustDrakeError(f"--save {path}: not writable")
+
+
 def run(args) -> int:
     from robust_drake.experiments.calafiore import run_ellipsoid_experiment
 
@@ -67,6 +80,11 @@ def run(args) -> int:
         raise RobustDrakeError(f"ellipsoid: only robot imi_scara has the section 5 regressor (got {args.robot!r})")
     if args.samples < 1:
         raise RobustDrakeError("--samples must be >= 1")
+    if args.draws < 1:
+        raise RobustDrakeError(f"--draws must be >= 1 (got {args.draws}): every ellipsoid is certified by "
+                               "sampling Delta; use e.g. --draws 100 for a quick run")
+    if args.save:
+        check_save_path(args.save)
     bounds = parse_bounds(args.bounds) if args.bounds else None
     data = _read_csv(args.data) if args.data else None
     out = run_ellipsoid_experiment(args.samples, args.solver, args.seed, args.backend, args.formulation, args.draws,

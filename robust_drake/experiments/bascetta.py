@@ -72,10 +72,26 @@ def case_summary(res, ctrl) -> dict:
     }
 
 
+def check_gains(gains) -> tuple[float, float]:
+    """``(K_P, K_D)`` as floats; refuses anything but two finite positive numbers (BR eqs. 5-6: the
+    nominal error dynamics ``[[0, 1], [-K_P, -K_D]]`` is Hurwitz only for K_P, K_D > 0)."""
+    try:
+        kp, kd = (float(g) for g in gains)
+    except (TypeError, ValueError):
+        raise RobustDrakeError(f"gains must be two numbers (K_P, K_D), got {gains!r}") from None
+    if not (np.isfinite(kp) and np.isfinite(kd) and kp > 0 and kd > 0):
+        raise RobustDrakeError(
+            f"gains K_P = {kp:g}, K_D = {kd:g} are not admissible: both must be finite and positive (BR eq. 6: "
+            "the nominal error dynamics [[0, 1], [-K_P, -K_D]] is Hurwitz only for K_P, K_D > 0)")
+    return kp, kd
+
+
 def run_case_study(gains=(25.0, 5.0), duration=None, boundary=0.01, perturbation=None,
                    trajectory_params=None, lemma_check=True, keep_results=False) -> dict:
     """Both cases at ``gains = (K_P, K_D)`` (scalars, the same for both joints); see module doc."""
     from robust_drake.analysis import lemmas
+
+    gains = check_gains(gains)
 
     out = {}
     results = {}

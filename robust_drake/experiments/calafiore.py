@@ -186,6 +186,9 @@ def run_study(theta0=None, P=None, n_true: int = 3, duration: float | None = Non
     from robust_drake.regressor import IMI_P, IMI_THETA0
     from robust_drake.systems.controllers.calafiore_indri import IMI_K, IMI_LAMBDA
 
+    if isinstance(n_true, bool) or not isinstance(n_true, (int, np.integer)) or n_true < 1:
+        raise RobustDrakeError(f"n_true must be an integer >= 1 (got {n_true!r}): the study needs at least one "
+                               "true parameter vector on the ellipsoid boundary")
     theta0 = IMI_THETA0 if theta0 is None else np.asarray(theta0, dtype=float)
     P = IMI_P if P is None else np.asarray(P, dtype=float)
     ell = Ellipsoid(theta0, P)

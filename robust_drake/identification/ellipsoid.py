@@ -49,6 +49,7 @@ import numpy as np
 import scipy.linalg
 import scipy.sparse as sp
 
+from robust_drake.analysis.tolerance import SDP_RTOL, certificate_tol, is_symmetric
 from robust_drake.errors import RobustDrakeError, SolverError
 from robust_drake.identification.lfr import LFR, random_deltas
 from robust_drake.identification.uncertainty import UncertaintyModel
@@ -72,7 +73,9 @@ class Ellipsoid:
         m = self.theta0.size
         if self.P.shape != (m, m):
             raise RobustDrakeError(f"P must be {m}x{m} for theta0 of length {m}, got {self.P.shape}")
-        if not np.allclose(self.P, self.P.T, atol=1e-9 * max(1.0, np.abs(self.P).max())):
+        if not np.all(np.isfinite(self.P)) or not np.all(np.isfinite(self.theta0)):
+            raise RobustDrakeError("theta0 and P must be finite")
+        if not is_symmetric(self.P):  # to rounding, relative to the size of P (analysis.tolerance)
             raise RobustDrakeError("P must be symmetric")
         self.P = 0.5 * (self.P + self.P.T)
 
@@ -102,8 +105,11 @@ class Ellipsoid:
 
     def save(self, path) -> None:
         """JSON with keys ``theta0`` and ``P``."""
-        with open(path, "w") as f:
-            json.dump(self.to_dict(), f, indent=2)
+        try:
+            with open(path, "w") as f:
+                json.dump(self.to_dict(), f, indent=2)
+        except OSError as exc:
+            raise RobustDrakeError(f"cannot write ellipsoid to {path}: {exc.strerror or exc}") from None
 
     @classmethod
     def load(cls, path) -> "Ellipsoid":
@@ -549,7 +555,10 @@ def _solve_cvxpy(data: SDPData, solver: str):
         raise RobustDrakeError(f"cvxpy backend supports clarabel and scs, not {solver!r}")
     t0 = time.perf_counter()
     kw = {"eps": 1e-7, "max_iters": 200000} if solver == "scs" else {}
-    prob.solve(solver=name, **kw)
+    try:
+        prob.solve(solver=name, **kw)
+    except cp.error.SolverError as exc:
+        raise SolverError(f"cvxpy/{solver} failed on the ellipsoid SDP: {str(exc).splitlines()[0]}") from None
     solve_s = time.perf_counter() - t0
     if prob.status not in ("optimal",):
         raise SolverError(f"cvxpy/{solver} status {prob.status} on the ellipsoid SDP")
@@ -788,6 +797,22 @@ def _solve_energy(model: UncertaintyModel, certify_draws: int, seed: int) -> Ell
 
 
 # ============================================================================ public API
+def check_identifiable(model: UncertaintyModel) -> None:
+    """Refuse data whose nominal regressor D0 (all samples stacked) has no full column rank: the
+    least-squares solutions then form an unbounded set and no ellipsoid contains them. Rank decided
+    to rounding: ``sigma_min <= certificate_tol(max(shape)) sigma_max`` (``analysis.tolerance``)."""
+    m = model.n_params
+    D = np.asarray(model.D0, float).reshape(-1, m)
+    s = np.linalg.svd(D, compute_uv=False) if D.size else np.zeros(0)
+    if D.shape[0] < m or s.size < m or s[-1] <= certificate_tol(max(D.shape)) * s[0]:
+        rank = int(np.sum(s > certificate_tol(max(D.shape)) * s[0])) if s.size and s[0] > 0 else 0
+        n = model.D0.shape[1] if np.ndim(model.D0) == 3 else 1
+        raise RobustDrakeError(
+            f"the nominal regressor of the {model.n_samples} samples has rank {rank} < {m} parameters: the "
+            f"least-squares solutions are unbounded and no ellipsoid contains them; use at least "
+            f"{-(-m // n)} samples of exciting motion")
+
+
 def solve_ellipsoid(model: UncertaintyModel, solver: str = "clarabel", formulation: str = "chordal",
                     backend: str = "drake", samples_per_clique: int = 1, certify_draws: int = 1000,
                     seed: int = 0, tol: float | None = None,
@@ -807,6 +832,7 @@ def solve_ellipsoid(model: UncertaintyModel, solver: str = "clarabel", formulati
 
     Raises SolverError when the solver fails or the certificate finds a LS solution outside.
     """
+    check_identifiable(model)
     if formulation == "auto":
         formulation = "energy" if model.n_samples > AUTO_ENERGY_ABOVE else "chordal"
     if formulation == "energy":
@@ -857,16 +883,25 @@ def solve_ellipsoid(model: UncertaintyModel, solver: str = "clarabel", formulati
     return res
 
 
-def certify(model: UncertaintyModel, ell: Ellipsoid, draws: int = 1000, seed: int = 0, tol: float = 1e-5) -> dict:
+def certify(model: UncertaintyModel, ell: Ellipsoid, draws: int = 1000, seed: int = 0,
+            tol: float | None = None) -> dict:
     """Sample Delta in the box (half at random vertices), compute the exact LS solution of the
     perturbed linearised equations, and count how many lie in E(P, theta0) (radius <= 1 + tol).
-    ``max_radius`` < 1 measures how tight the ellipsoid is along the sampled solutions."""
+    ``max_radius`` < 1 measures how tight the ellipsoid is along the sampled solutions.
+
+    Default ``tol``: the SDP's own accuracy (``tolerance.SDP_RTOL``; the ellipsoid is an
+    interior-point solution, feasible to the solver's tolerance) plus rounding of the radius,
+    ``certificate_tol(cond(P))`` (``analysis.tolerance``)."""
+    if int(draws) < 1:
+        raise RobustDrakeError(f"certificate draws must be >= 1 (got {draws})")
+    if tol is None:
+        tol = SDP_RTOL + certificate_tol(np.linalg.cond(ell.P))
     rng = np.random.default_rng(seed)
     deltas = random_deltas(model.n_scalars, draws, rng)
     th = model.ls_solutions(deltas)
     r = ell.radius(th)
     return {"tested": int(draws), "inside": int(np.sum(r <= 1.0 + tol)), "max_radius": float(r.max()),
-            "mean_radius": float(r.mean())}
+            "mean_radius": float(r.mean()), "tol": float(tol)}
 
 
 def result_to_dict(res: EllipsoidResult) -> dict:

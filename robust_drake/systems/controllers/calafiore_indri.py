@@ -23,6 +23,7 @@ import math
 
 import numpy as np
 
+from robust_drake.analysis.tolerance import psd_tol
 from robust_drake.errors import RobustDrakeError
 from robust_drake.systems.controllers.base import DiscreteController, diag_gain
 
@@ -82,7 +83,7 @@ def sqrtm_psd(P) -> np.ndarray:
     """Symmetric E = P^(1/2) (CI section 5.2), so that E^T E = P."""
     P = np.asarray(P, dtype=float)
     w, V = np.linalg.eigh(0.5 * (P + P.T))
-    if w[0] < -1e-9 * max(1.0, abs(w[-1])):
+    if not np.all(np.isfinite(w)) or w[0] < -psd_tol(w):  # rounding, relative to ||P|| (analysis.tolerance)
         raise RobustDrakeError(f"P must be positive semidefinite (smallest eigenvalue {w[0]:.3g})")
     return (V * np.sqrt(np.clip(w, 0.0, None))) @ V.T
 
