@@ -666,9 +666,14 @@ def _plots(out_dir, fit, val, base_fit, final_fit, base_val_r, final_val_r, cf, 
     return [os.path.basename(x) for x in paths]
 
 
+def _num(x, spec: str) -> str:
+    """``format(x, spec)``, or "n/a" for a value the strict report holds as null (NaN/inf)."""
+    return "n/a" if x is None else format(x, spec)
+
+
 def render_markdown(rep: dict) -> str:
     n = len(rep["baseline"]["rms_fit"])
-    fmt = lambda xs: ", ".join(f"{x:.4f}" for x in xs)  # noqa: E731
+    fmt = lambda xs: ", ".join(f"{_num(x, '.4f')}" for x in xs)  # noqa: E731
     L = [f"# Repair report: {rep['robot']}", ""]
     L += [f"Fit samples: {rep['samples']} ({len(rep['data']['fit']['sources'])} files); validation samples: "
           f"{rep['samples_validate']} ({rep['data']['validation_source']}). Torque column: `{rep['torque']}`.",
@@ -677,23 +682,23 @@ def render_markdown(rep: dict) -> str:
     L += ["## Error before and after (RMS torque residual per joint, N m)", "",
           "| model | " + " | ".join(f"fit j{j}" for j in range(n)) + " | " + " | ".join(f"validate j{j}" for j in range(n)) + " |",
           "|---|" + "---|" * (2 * n)]
-    L.append("| baseline (rigid body + Coulomb + viscous) | " + " | ".join(f"{x:.4f}" for x in rep["baseline"]["rms_fit"])
-             + " | " + " | ".join(f"{x:.4f}" for x in rep["baseline"]["rms_validate"]) + " |")
+    L.append("| baseline (rigid body + Coulomb + viscous) | " + " | ".join(f"{_num(x, '.4f')}" for x in rep["baseline"]["rms_fit"])
+             + " | " + " | ".join(f"{_num(x, '.4f')}" for x in rep["baseline"]["rms_validate"]) + " |")
     for e in rep["effects"]:
         L.append(f"| + {e['label']} | " + " | ".join("" for _ in range(n)) + " | "
-                 + " | ".join(f"{x:.4f}" for x in e["rms_validate_after"]) + " |")
-    L.append("| **repaired** | " + " | ".join(f"{x:.4f}" for x in rep["final"]["rms_fit"]) + " | "
-             + " | ".join(f"**{x:.4f}**" for x in rep["final"]["rms_validate"]) + " |")
+                 + " | ".join(f"{_num(x, '.4f')}" for x in e["rms_validate_after"]) + " |")
+    L.append("| **repaired** | " + " | ".join(f"{_num(x, '.4f')}" for x in rep["final"]["rms_fit"]) + " | "
+             + " | ".join(f"**{_num(x, '.4f')}**" for x in rep["final"]["rms_validate"]) + " |")
     if rep.get("consistent"):
         c = rep["consistent"]
-        L.append(f"| repaired, physically consistent ({c['solver']}) | " + " | ".join(f"{x:.4f}" for x in c["rms_fit"])
-                 + " | " + " | ".join(f"{x:.4f}" for x in c["rms_validate"]) + " |")
+        L.append(f"| repaired, physically consistent ({c['solver']}) | " + " | ".join(f"{_num(x, '.4f')}" for x in c["rms_fit"])
+                 + " | " + " | ".join(f"{_num(x, '.4f')}" for x in c["rms_validate"]) + " |")
     L += ["", "## Effects added", ""]
     if not rep["effects"]:
         L.append("None: no candidate passed the stopping rule.")
     for e in rep["effects"]:
-        ps = ", ".join(f"{k} = {v:.4g}" if isinstance(v, float) else f"{k} = {v}" for k, v in e["parameters"].items())
-        L.append(f"- **{e['kind']}** (joint {e['joint']}): {ps}; {'held-out error -' + format(e['heldout_gain'], '.1%') if e.get('heldout_gain') is not None else 'named from the base-parameter shift against the URDF'}; "
+        ps = ", ".join(f"{k} = {_num(v, '.4g')}" if isinstance(v, float) else f"{k} = {v}" for k, v in e["parameters"].items())
+        L.append(f"- **{e['kind']}** (joint {e['joint']}): {ps}; {'held-out error -' + _num(e['heldout_gain'], '.1%') if e.get('heldout_gain') is not None else 'named from the base-parameter shift against the URDF'}; "
                  f"confidence {e['confidence']}. Why plausible: {e['plausibility']}.")
     est = rep.get("estimator") or {}
     if est.get("hausman"):
@@ -703,12 +708,12 @@ def render_markdown(rep: dict) -> str:
               "the torque does not cause (motion through gear backlash at reversals, vibration, "
               "differentiated encoder noise) biases least squares towards smaller parameters. Test: instrumental variables "
               f"(the same columns low-passed at {est['instrument_cutoff_hz']:g} Hz) against least squares, "
-              f"Durbin-Wu-Hausman statistic {h['statistic']:.1f} over {h['dof']} dof (1 % limit "
-              f"{h['limit']:.1f}): " + ("**significant: the repaired model uses the IV estimate.**"
+              f"Durbin-Wu-Hausman statistic {_num(h['statistic'], '.1f')} over {h['dof']} dof (1 % limit "
+              f"{_num(h['limit'], '.1f')}): " + ("**significant: the repaired model uses the IV estimate.**"
                                         if est["method"] == "instrumental_variables" else
                                         "not significant: least squares kept."), "",
               "Baseline structure with the IV estimate (the estimator's share of the change): validate "
-              + ", ".join(f"{x:.4f}" for x in est["baseline_iv"]["rms_validate"]) + " N m. On a held-out "
+              + ", ".join(f"{_num(x, '.4f')}" for x in est["baseline_iv"]["rms_validate"]) + " N m. On a held-out "
               "tail of the *same* runs the IV torque error can be higher than LS's (LS is the best "
               "equation-error predictor given equally noisy columns); the replay below judges the motion."]
     nom = rep.get("nominal")
@@ -717,40 +722,40 @@ def render_markdown(rep: dict) -> str:
               "Effects whose columns lie in the span of the rigid-body regressor (a tool payload, a rotor "
               "inertia already inside a base parameter) are absorbed exactly by a free fit; they show up "
               "only as a shift of the base parameters away from the URDF's. Shift chi^2 "
-              f"{nom['chi2']:.1f} over {nom['dof']} parameters (99 % limit {nom['chi2_limit']:.1f}; URDF "
-              f"trusted to {nom['sigma_rel']:.0%} of each parameter): "
+              f"{_num(nom['chi2'], '.1f')} over {nom['dof']} parameters (99 % limit {_num(nom['chi2_limit'], '.1f')}; URDF "
+              f"trusted to {_num(nom['sigma_rel'], '.0%')} of each parameter): "
               + ("**not significant**." if not nom["significant"] else
                  f"**explained by {nom['named']}**." if nom.get("named") else
                  "**significant and not explained** by any in-span effect: the URDF's inertial "
                  "parameters and the fitted ones disagree in a way no single payload or rotor inertia explains."),
               "", f"URDF parameters with fitted friction/effects: validate "
-              + ", ".join(f"{x:.4f}" for x in nom["rms_validate"]) + " N m.", "",
+              + ", ".join(f"{_num(x, '.4f')}" for x in nom["rms_validate"]) + " N m.", "",
               "| in-span candidate | parameters | chi^2 after | decision |", "|---|---|---|---|"]
         for c in nom["span_candidates"]:
-            ps = ", ".join(f"{k} = {v:.4g}" for k, v in c["parameters"].items())
-            L.append(f"| {c['label']} | {ps} | {c['chi2_after']:.1f} | {c['reason']} |")
+            ps = ", ".join(f"{k} = {_num(v, '.4g')}" for k, v in c["parameters"].items())
+            L.append(f"| {c['label']} | {ps} | {_num(c['chi2_after'], '.1f')} | {c['reason']} |")
     L += ["", "## Selection steps", "", "| step | best candidate | held-out score before -> after | BIC before -> after | decision |",
           "|---|---|---|---|---|"]
     for s in rep["selection"]["steps"]:
-        L.append(f"| {s['step']} | {s['label']} | {s['score_before']:.4f} -> {s['score_after']:.4f} | "
-                 f"{s['bic_before']:.1f} -> {s['bic_after']:.1f} | {'added' if s['accepted'] else 'stop'}: {s['reason']} |")
-    L += ["", f"Rule: {rep['selection']['rule']}; min gain {rep['selection']['min_gain']:.0%}; "
+        L.append(f"| {s['step']} | {s['label']} | {_num(s['score_before'], '.4f')} -> {_num(s['score_after'], '.4f')} | "
+                 f"{_num(s['bic_before'], '.1f')} -> {_num(s['bic_after'], '.1f')} | {'added' if s['accepted'] else 'stop'}: {s['reason']} |")
+    L += ["", f"Rule: {rep['selection']['rule']}; min gain {_num(rep['selection']['min_gain'], '.0%')}; "
           f"{rep['selection']['candidates']} candidates. Scores are relative to the baseline's held-out error.", ""]
     L += ["## Residual structure", ""]
     if rep["unexplained_structure"]:
-        where = "; ".join(f"joint {w['joint']} vs {w['variable']} (eta^2 = {w['eta2']:.3f})" for w in rep["unexplained_where"])
+        where = "; ".join(f"joint {w['joint']} vs {w['variable']} (eta^2 = {_num(w['eta2'], '.3f')})" for w in rep["unexplained_where"])
         col = rep["residual"]["final"]["coloured"]
         L.append("**unexplained_structure: true.** The repaired model's residual still depends on the state "
                  f"where no library effect explains it: {where or 'none by state'}"
                  + (f"; coloured residual on joints {[c['joint'] for c in col]}" if col else "") + ".")
     else:
         L.append("unexplained_structure: false (no state variable explains >= "
-                 f"{R.ETA_MIN:.0%} of the residual variance at p < {R.ALPHA}).")
+                 f"{_num(R.ETA_MIN, '.0%')} of the residual variance at p < {R.ALPHA}).")
     L.append("")
     L.append("Strongest state dependences of the final residual (eta^2 = share of residual variance explained by a "
              "binned function of the variable):")
     for d in rep["residual"]["final"]["state_dependence_top"][:6]:
-        L.append(f"- joint {d['joint']} vs {d['variable']}: eta^2 = {d['eta2']:.3f}")
+        L.append(f"- joint {d['joint']} vs {d['variable']}: eta^2 = {_num(d['eta2'], '.3f')}")
     rp = rep.get("replay") or {}
     if rp.get("before") and rp.get("after"):
         L += ["", "## Replay of the measured torques through the Drake plant", "",
@@ -761,7 +766,7 @@ def render_markdown(rep: dict) -> str:
               f"| after (repaired + effect blocks) | {fmt(rp['after']['rms_q'])} | {fmt(rp['after']['rms_q_end'])} |"]
     ident = rep["identifiability"]
     L += ["", "## Identifiability", "",
-          f"Condition number of the column-normalised baseline regressor: {ident['condition_number']:.3g}; "
+          f"Condition number of the column-normalised baseline regressor: {_num(ident['condition_number'], '.3g')}; "
           f"unidentifiable: {', '.join(ident['unidentifiable']) or 'none'}."]
     if rep.get("warnings"):
         L += ["", "## Warnings", ""] + [f"- {w}" for w in rep["warnings"]]
