@@ -25,10 +25,17 @@ Velocity / acceleration convention (one convention, applied everywhere)
     Velocities given in a canonical CSV (``qd*``, ``qdd*``) are used as given when
     ``use_given_derivatives=True``; otherwise they are recomputed by the convention above.
 
-Validation never silently drops anything: missing/duplicate columns, non-increasing or
-irregular time (the jitter is reported), NaN/inf, wrong joint count, constant or too-short
-signals and positions that look like degrees all raise :class:`DataError` with the file
-name and what to do.
+Validation never silently drops anything: missing/duplicate columns (read from the raw header
+line: pandas would rename a second copy and ignore it), non-increasing or irregular time (the
+jitter is reported), time that looks like milliseconds (median step > ``MAX_SAMPLE_PERIOD_S``),
+NaN/inf or absurd values (|x| > ``MAX_ABS_VALUE``; column and row named), wrong joint count,
+constant or too-short signals and positions that look like degrees all raise
+:class:`DataError` with the file name and what to do. Warnings (``IdentData.warnings``): jitter,
+unpowered joints, logged velocities that disagree with the derivative of the positions
+(units); ``IdentData.position_counts`` records each joint's range in encoder counts
+(:func:`frozen_joints`: at most ``FROZEN_MAX_COUNTS`` counts = unidentifiable joint).
+Checks that need the robot model (units against the URDF, sample budget, files used twice,
+URDF masses) are in :mod:`robust_drake.identification.input_checks`.
 """
 
 from __future__ import annotations
@@ -219,7 +226,7 @@ def read_header(path: str) -> list[str]:
     import csv
 
     try:
-        with open(path, newline="", encoding="utf-8", errors="replace") as fh:
+        with open(path, newline="", encoding="utf-8-sig", errors="replace") as fh:
             row = next(csv.reader(fh), None)
     except OSError as exc:
         raise DataError(f"{path}: cannot read ({exc.strerror or exc})") from exc
