@@ -359,3 +359,21 @@ def test_inputs_inside_out_survive_a_forced_rerun(sim, tmp_path, capsys):
         assert status == 0
         assert sorted(os.listdir(out)) == ["fit.csv", "report.json", "report.md", "val.csv"]
         assert open(out / "fit.csv", "rb").read() == open(sim[0], "rb").read()
+
+
+def test_force_keeps_unrelated_files_and_removes_the_old_reports_plots(sim, tmp_path, capsys):
+    """--out pointing at a folder that also holds other work: --force replaces the report's own
+    files (report.md/json and its plots) and deletes nothing else."""
+    fit, val = sim
+    out = tmp_path / "work"
+    out.mkdir()
+    (out / "notes.txt").write_text("mine")
+    (out / "report.md").write_text("old report")
+    (out / "report.json").write_text(json.dumps({"plots": ["custom_plot.png"]}))
+    (out / "custom_plot.png").write_bytes(b"old")
+    (out / "torque_validate.png").write_bytes(b"old")
+    status, _, _ = _repair(capsys, fit, "--robot", ROBOT, "--validate", val, "--out", out, "--force", *QUICK)
+    assert status == 0
+    assert sorted(os.listdir(out)) == ["notes.txt", "report.json", "report.md"]
+    assert (out / "notes.txt").read_text() == "mine"
+    assert _leftovers(tmp_path) == []

@@ -172,16 +172,34 @@ def check_output_dir(out_dir, overwrite: bool) -> str:
     return path
 
 
+#: plot files a repair report may hold (removed with the report it belongs to)
+REPORT_PLOTS = ("residual_fit.png", "residual_validate.png", "torque_validate.png", "estimator_cutoff.png")
+
+
+def _report_artefacts(out: str) -> set[str]:
+    """Names in ``out`` that belong to an earlier report: report.md/json and its plots."""
+    names = set(REPORT_FILES) | set(REPORT_PLOTS)
+    try:
+        with open(os.path.join(out, "report.json")) as fh:
+            names |= {os.path.basename(str(p)) for p in (json.load(fh).get("plots") or [])}
+    except (OSError, ValueError, AttributeError):
+        pass
+    return {n for n in names if os.path.isfile(os.path.join(out, n))}
+
+
 def _publish(tmp: str, out: str, keep: list[str]) -> None:
     """Move the complete report folder ``tmp`` into place at ``out``.
 
     * ``out`` absent: one atomic ``rename``.
     * ``out`` without an earlier report (e.g. a folder holding the input CSVs): the new files are
       moved in one by one (nothing of value is replaced).
-    * ``out`` with an earlier report (``overwrite``): the files ``keep`` (inputs of this run that
-      live inside ``out``) are copied into ``tmp``, then ``out`` is renamed aside, ``tmp`` renamed
-      to ``out`` and the old folder removed -- the old report's plots do not survive beside the
-      new one. If the second rename fails, the old folder is put back.
+    * ``out`` with an earlier report (``overwrite``) and nothing else but this run's inputs
+      ``keep``: the inputs are copied into ``tmp``, ``out`` is renamed aside, ``tmp`` renamed to
+      ``out`` and the old folder removed -- the old report's plots do not survive beside the new
+      one. If the second rename fails, the old folder is put back.
+    * ``out`` with an earlier report *and* other files (not ours to delete): the earlier report's
+      files (report.md/json and its plots) are removed and the new ones moved in.
+    In every case the report is complete in ``tmp`` before anything in ``out`` is touched.
     """
     import shutil
     import tempfile
@@ -189,14 +207,18 @@ def _publish(tmp: str, out: str, keep: list[str]) -> None:
     if not os.path.exists(out):
         os.rename(tmp, out)
         return
-    if not any(os.path.exists(os.path.join(out, f)) for f in REPORT_FILES):
+    old_report = _report_artefacts(out)
+    keep_top = {os.path.relpath(k, out).split(os.sep)[0] for k in keep}
+    foreign = set(os.listdir(out)) - old_report - keep_top
+    if not old_report or foreign:
+        for name in old_report:
+            os.remove(os.path.join(out, name))
         for name in os.listdir(tmp):
             os.replace(os.path.join(tmp, name), os.path.join(out, name))
         os.rmdir(tmp)
         return
     for src in keep:
-        rel = os.path.relpath(src, out)
-        dst = os.path.join(tmp, rel)
+        dst = os.path.join(tmp, os.path.relpath(src, out))
         if not os.path.exists(dst):
             os.makedirs(os.path.dirname(dst), exist_ok=True)
             shutil.copy2(src, dst)
