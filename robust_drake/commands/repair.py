@@ -3,10 +3,14 @@
 ::
 
     robust-drake repair FIT.csv [FIT2.csv ...] --robot NAME_OR_URDF [--validate VAL.csv ...]
-                        [--torque tau_meas|tau_con] [--cutoff HZ] --out DIR [--json] [--plot]
+                        [--torque tau_meas|tau_con] [--cutoff HZ] --out DIR [--force] [--json] [--plot]
 
 Writes ``DIR/report.md``, ``DIR/report.json`` and (with ``--plot``, or always unless
 ``--no-plots``) residual plots. CSVs: canonical (``t, q1..qn, tau1..taun``) or DFKI records.
+The report is built in a temporary folder beside DIR and moved into place when complete; an
+earlier report in DIR is replaced only with ``--force``. Warnings (poor excitation, unpowered
+joint, units, little data, frozen joint, prismatic joint) are printed as ``warning: ...`` lines
+on stderr and listed in ``report.json["warnings"]`` and report.md.
 """
 
 from __future__ import annotations
