@@ -82,6 +82,24 @@ def format_table(rows: list[list], header: list[str], floatfmt: str = "{:.4g}") 
     return "\n".join([line, sep, *body])
 
 
+def non_negative(kind, option):
+    """argparse type: a number >= 0 of ``kind`` (int or float); the message names ``option``."""
+    import math
+
+    def parse(text):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{option} must be a {'whole ' if kind is int else ''}number, "
+                                             f"got {text!r}") from None
+        if not (math.isfinite(value) and value >= 0):
+            raise argparse.ArgumentTypeError(f"{option} must be >= 0, got {text}")
+        return value
+
+    parse.__name__ = kind.__name__
+    return parse
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="robust-drake",

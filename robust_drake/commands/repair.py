@@ -3,10 +3,14 @@
 ::
 
     robust-drake repair FIT.csv [FIT2.csv ...] --robot NAME_OR_URDF [--validate VAL.csv ...]
-                        [--torque tau_meas|tau_con] [--cutoff HZ] --out DIR [--json] [--plot]
+                        [--torque tau_meas|tau_con] [--cutoff HZ] --out DIR [--force] [--json] [--plot]
 
 Writes ``DIR/report.md``, ``DIR/report.json`` and (with ``--plot``, or always unless
 ``--no-plots``) residual plots. CSVs: canonical (``t, q1..qn, tau1..taun``) or DFKI records.
+The report is built in a temporary folder beside DIR and moved into place when complete; an
+earlier report in DIR is replaced only with ``--force``. Warnings (poor excitation, unpowered
+joint, units, little data, frozen joint, prismatic joint) are printed as ``warning: ...`` lines
+on stderr and listed in ``report.json["warnings"]`` and report.md.
 """
 
 from __future__ import annotations
@@ -14,7 +18,7 @@ from __future__ import annotations
 import os
 import sys
 
-from robust_drake.cli import add_output_flags, format_table, print_json
+from robust_drake.cli import add_output_flags, format_table, non_negative, print_json
 
 
 def register(subparsers) -> None:
@@ -33,9 +37,9 @@ def register(subparsers) -> None:
                    help="zero-phase low-pass cut-off for q and tau (default 8 Hz)")
     p.add_argument("--effects", default=None, metavar="K1,K2",
                    help="restrict the candidate effect kinds (default: the whole library)")
-    p.add_argument("--min-gain", type=float, default=None,
+    p.add_argument("--min-gain", type=non_negative(float, "--min-gain"), default=None,
                    help="minimum relative held-out error reduction to add an effect (default 0.05)")
-    p.add_argument("--max-effects", type=int, default=4)
+    p.add_argument("--max-effects", type=non_negative(int, "--max-effects"), default=4)
     p.add_argument("--no-consistent", action="store_true",
                    help="skip the physically consistent (pseudo-inertia LMI) estimate")
     p.add_argument("--no-instruments", action="store_true",
@@ -48,6 +52,8 @@ def register(subparsers) -> None:
     p.add_argument("--no-replay", action="store_true", help="skip the replay through the Drake plant")
     p.add_argument("--no-plots", action="store_true", help="do not write PNG plots")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    p.add_argument("--force", action="store_true",
+                   help="replace an earlier report in --out (its plots are removed with it)")
     add_output_flags(p, plot=None)
     p.add_argument("--plot", action="store_true", help="write residual plots (default on; kept for symmetry)")
     p.set_defaults(func=run)
@@ -78,7 +84,10 @@ def run(args) -> int:
             raise RobustDrakeError(f"--sigma-rel must be > 0, got {args.sigma_rel}")
         opts.sigma_rel = args.sigma_rel
     log = None if args.json else (lambda msg: print(msg, file=sys.stderr))
-    rep = run_repair(args.fit, opts, validate_paths=args.validate, out_dir=args.out, progress=log)
+    rep = run_repair(args.fit, opts, validate_paths=args.validate, out_dir=args.out, progress=log,
+                     overwrite=args.force)
+    for w in rep.get("warnings") or []:  # the same list as report.json["warnings"] and report.md
+        print(f"warning: {w}", file=sys.stderr)
     if args.json:
         print_json(rep)
         return 0

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from robust_drake.cli import add_output_flags, format_table, print_json
+from robust_drake.cli import add_output_flags, format_table, non_negative, print_json
 from robust_drake.errors import RobustDrakeError
 from robust_drake.metrics import METRIC_KEYS
 
@@ -19,7 +19,7 @@ def register(sub):
     p.add_argument("--observer", default="averaging", help="velocity estimator (default averaging, JS eqs. 64/66)")
     p.add_argument("--rate", type=float, default=2500.0, help="controller/observer sample rate [Hz] (default 2500)")
     p.add_argument("--duration", type=float, default=None, help="simulated time [s] (default: the trajectory's)")
-    p.add_argument("--skip", type=float, default=None,
+    p.add_argument("--skip", type=non_negative(float, "--skip"), default=None,
                    help="ignore the first SKIP s in the metrics (default 0; 1 s for the circle as in JS section 10)")
     p.add_argument("--friction-compensation", action="store_true", help="add the fixed compensation of JS eqs. 89-90")
     add_output_flags(p, plot="FILE")

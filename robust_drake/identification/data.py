@@ -25,10 +25,17 @@ Velocity / acceleration convention (one convention, applied everywhere)
     Velocities given in a canonical CSV (``qd*``, ``qdd*``) are used as given when
     ``use_given_derivatives=True``; otherwise they are recomputed by the convention above.
 
-Validation never silently drops anything: missing/duplicate columns, non-increasing or
-irregular time (the jitter is reported), NaN/inf, wrong joint count, constant or too-short
-signals and positions that look like degrees all raise :class:`DataError` with the file
-name and what to do.
+Validation never silently drops anything: missing/duplicate columns (read from the raw header
+line: pandas would rename a second copy and ignore it), non-increasing or irregular time (the
+jitter is reported), time that looks like milliseconds (median step > ``MAX_SAMPLE_PERIOD_S``),
+NaN/inf or absurd values (|x| > ``MAX_ABS_VALUE``; column and row named), wrong joint count,
+constant or too-short signals and positions that look like degrees all raise
+:class:`DataError` with the file name and what to do. Warnings (``IdentData.warnings``): jitter,
+unpowered joints, logged velocities that disagree with the derivative of the positions
+(units); ``IdentData.position_counts`` records each joint's range in encoder counts
+(:func:`frozen_joints`: at most ``FROZEN_MAX_COUNTS`` counts = unidentifiable joint).
+Checks that need the robot model (units against the URDF, sample budget, files used twice,
+URDF masses) are in :mod:`robust_drake.identification.input_checks`.
 """
 
 from __future__ import annotations
@@ -49,6 +56,13 @@ MIN_SAMPLES = 50
 MAX_RELATIVE_JITTER = 0.2
 #: peak |q| above which positions "look like degrees" (4 pi rad = two full turns)
 DEGREE_THRESHOLD_RAD = 4.0 * np.pi
+#: |value| above which a position/velocity/acceleration/torque entry is refused as absurd (SI)
+MAX_ABS_VALUE = 1e6
+#: median sampling period above which the time column "looks like milliseconds" [s] (10 Hz:
+#: slower than any identification log; a 500 Hz log in ms steps by 2.0)
+MAX_SAMPLE_PERIOD_S = 0.1
+#: a joint whose position range spans at most this many encoder counts is unidentifiable
+FROZEN_MAX_COUNTS = 2
 
 
 class DataWarning(UserWarning):
@@ -83,6 +97,8 @@ class RawData:
     source: str = "<memory>"
     fmt: str = "canonical"  # or "dfki"
     torque_column: str = "tau"
+    #: the file's column names behind each array ({"q": ["q1", "q2"], ...}; for messages)
+    columns: dict = field(default_factory=dict)
 
     @property
     def n(self) -> int:
@@ -109,6 +125,8 @@ class IdentData:
     segment: np.ndarray | None = None
     jitter: float = 0.0  # std(dt) / mean(dt), worst file
     warnings: list[str] = field(default_factory=list)
+    #: per joint, the position range in encoder counts (largest over the files; data.position_counts)
+    position_counts: np.ndarray | None = None
 
     def __post_init__(self):
         if self.segment is None:
@@ -161,6 +179,8 @@ class IdentData:
             sources=[s for p in parts for s in p.sources], filter=parts[0].filter,
             segment=np.concatenate(segs), jitter=max(p.jitter for p in parts),
             warnings=[w for p in parts for w in p.warnings],
+            position_counts=None if any(p.position_counts is None for p in parts)
+            else np.max([p.position_counts for p in parts], axis=0),
         )
 
     def summary(self) -> dict:
@@ -197,6 +217,40 @@ def detect_format(columns: list[str]) -> str:
     )
 
 
+def read_header(path: str) -> list[str]:
+    """The header line of a CSV as written (stripped names), read without pandas.
+
+    pandas renames a repeated name (``q1``, ``q1`` -> ``q1``, ``q1.1``) and the second copy
+    would then be ignored, so duplicates are detected here on the raw line and refused.
+    """
+    import csv
+
+    try:
+        with open(path, newline="", encoding="utf-8-sig", errors="replace") as fh:
+            row = next(csv.reader(fh), None)
+    except OSError as exc:
+        raise DataError(f"{path}: cannot read ({exc.strerror or exc})") from exc
+    if not row:
+        raise DataError(f"{path}: empty file (no header line)")
+    cols = [c.strip() for c in row]
+    dup = [c for i, c in enumerate(cols) if c in cols[:i]]
+    if dup:
+        c = dup[0]
+        role = ""
+        if c in ("t", "time"):
+            role = "the time column "
+        elif (c.startswith("q") and c[1:].isdigit()) or c.startswith("pos_meas"):
+            role = "the position column "
+        elif c.startswith("tau") or c.startswith("qd") or c.startswith("vel_meas"):
+            role = "the column "
+        raise DataError(
+            f"{path}: {role}{c!r} appears {cols.count(c)} times in the header (duplicate columns "
+            f"{sorted(set(dup))}); a reader would silently use only one copy: rename or remove the "
+            "duplicate (wrong joint numbering when the file was written?)"
+        )
+    return cols
+
+
 def read_csv(path: str, torque: str = "tau_meas") -> RawData:
     """Read a canonical or DFKI CSV into :class:`RawData` (no filtering; checks columns).
 
@@ -208,16 +262,14 @@ def read_csv(path: str, torque: str = "tau_meas") -> RawData:
     path = os.fspath(path)
     if not os.path.exists(path):
         raise DataError(f"{path}: no such file")
+    cols = read_header(path)
+    fmt = detect_format(cols)
     try:
-        header = pd.read_csv(path, nrows=0).columns
+        df = pd.read_csv(path)
     except Exception as exc:  # pandas raises several types for garbage
         raise DataError(f"{path}: cannot read as CSV ({exc})") from exc
-    cols = [str(c).strip() for c in header]
-    dup = sorted({c for c in cols if cols.count(c) > 1})
-    if dup:
-        raise DataError(f"{path}: duplicate columns {dup}")
-    fmt = detect_format(cols)
-    df = pd.read_csv(path)
+    if len(df.columns) != len(cols):
+        raise DataError(f"{path}: the header has {len(cols)} columns but the data {len(df.columns)}")
     df.columns = cols
     if fmt == "canonical":
         tcol, qcols, taucols = "t", _numbered(cols, "q"), _numbered(cols, "tau")
@@ -250,6 +302,7 @@ def read_csv(path: str, torque: str = "tau_meas") -> RawData:
         raw = RawData(
             t=t, q=arr(qcols), tau=arr(taucols), qd=arr(qdcols) if qdcols else None,
             qdd=arr(qddcols) if qddcols else None, source=path, fmt=fmt, torque_column=torque_column,
+            columns={"t": [tcol], "q": qcols, "tau": taucols, "qd": qdcols, "qdd": qddcols},
         )
     except ValueError as exc:
         raise DataError(f"{path}: non-numeric values ({exc})") from exc
@@ -293,12 +346,26 @@ def validate_raw(raw: RawData, n_joints: int | None = None, allow_degrees: bool 
         a = getattr(raw, name)
         if a is None:
             continue
-        bad = ~np.isfinite(a)
+        a2 = a.reshape(len(a), -1)
+        names = raw.columns.get(name) or [f"{name}{i + 1}" for i in range(a2.shape[1])]
+        bad = ~np.isfinite(a2)
         if bad.any():
             rows = np.unique(np.nonzero(bad)[0])
+            col = names[int(np.nonzero(bad[rows[0]])[0][0])]
             raise DataError(
-                f"{src}: {int(bad.sum())} NaN/inf values in {name} (first rows {rows[:5].tolist()});"
+                f"{src}: {int(bad.sum())} NaN/inf values, first in column {col!r} at data row "
+                f"{rows[0] + 1} (file line {rows[0] + 2}; rows {(rows[:5] + 1).tolist()});"
                 " clean or cut the file, nothing is dropped silently"
+            )
+        if name == "t":
+            continue  # time stamps may be large (epoch seconds); its steps are checked below
+        big = np.abs(a2) > MAX_ABS_VALUE
+        if big.any():
+            r, c = (int(x[0]) for x in np.nonzero(big))
+            raise DataError(
+                f"{src}: absurd value {a2[r, c]:.4g} in column {names[c]!r} at data row {r + 1} "
+                f"(file line {r + 2}): |x| > {MAX_ABS_VALUE:g} in SI units (rad, rad/s, rad/s^2, N m) "
+                f"is no measurement; {int(big.sum())} such values in the file"
             )
     dt = np.diff(raw.t)
     if (dt <= 0).any():
@@ -308,6 +375,13 @@ def validate_raw(raw: RawData, n_joints: int | None = None, allow_degrees: bool 
             f"(t={raw.t[k]:.6g} then {raw.t[k + 1]:.6g})"
         )
     dt_med = float(np.median(dt))
+    if dt_med > MAX_SAMPLE_PERIOD_S:
+        raise DataError(
+            f"{src}: time looks like milliseconds: the time column steps by {dt_med:g} (median), i.e. "
+            f"{1.0 / dt_med:.3g} Hz if it were seconds; convert it to seconds (divide by 1000 for "
+            f"{1000.0 / dt_med:.3g} Hz). Identification needs a sampling period below "
+            f"{MAX_SAMPLE_PERIOD_S:g} s"
+        )
     jitter = float(np.std(dt) / np.mean(dt))
     if jitter > MAX_RELATIVE_JITTER or dt.max() > 5 * dt_med:
         raise DataError(
@@ -330,6 +404,10 @@ def validate_raw(raw: RawData, n_joints: int | None = None, allow_degrees: bool 
                 f"{os.path.basename(src)}: torque {i + 1} is constant ({raw.tau[0, i]:g} N m): "
                 "treated as an unpowered joint"
             )
+    counts = position_counts(raw.q)
+    from robust_drake.identification.input_checks import velocity_unit_warnings
+
+    warns += velocity_unit_warnings(raw)
     peak = np.abs(raw.q).max(axis=0)
     if not allow_degrees and (peak > DEGREE_THRESHOLD_RAD).any():
         i = int(np.argmax(peak))
@@ -337,7 +415,33 @@ def validate_raw(raw: RawData, n_joints: int | None = None, allow_degrees: bool 
             f"{src}: |q{i + 1}| reaches {peak[i]:.4g}, more than two turns: positions look like "
             "degrees (convert to rad); pass allow_degrees=True if the joint really turns that far"
         )
-    return {"dt": float(np.mean(dt)), "jitter": jitter, "max_dt": float(dt.max()), "warnings": warns}
+    return {"dt": float(np.mean(dt)), "jitter": jitter, "max_dt": float(dt.max()), "warnings": warns,
+            "counts": counts}
+
+
+def position_counts(q: np.ndarray) -> np.ndarray:
+    """Range of each position column in encoder counts: ``ptp(q_j) / quantum_j``.
+
+    The quantum of a column is its smallest non-zero step ``min |q_j[k+1] - q_j[k]| > 0``
+    (the encoder resolution of a quantised log; for unquantised data it is tiny and the count
+    huge). A joint whose range is at most :data:`FROZEN_MAX_COUNTS` counts carries no
+    information about its dynamics (see :func:`frozen_joints`).
+    """
+    q = np.asarray(q, float).reshape(len(q), -1)
+    out = np.empty(q.shape[1])
+    for j in range(q.shape[1]):
+        steps = np.abs(np.diff(q[:, j]))
+        steps = steps[steps > 0]
+        span = float(np.ptp(q[:, j]))
+        out[j] = 0.0 if steps.size == 0 else span / float(steps.min())
+    return out
+
+
+def frozen_joints(data: "IdentData") -> list[int]:
+    """0-based joints whose position stays within FROZEN_MAX_COUNTS encoder counts in every file."""
+    if data.position_counts is None:
+        return []
+    return [j for j, c in enumerate(data.position_counts) if c <= FROZEN_MAX_COUNTS + 1e-6]
 
 
 # --------------------------------------------------------------------------- filtering
@@ -399,7 +503,7 @@ def prepare(
         parts.append(IdentData(
             t=r.t[keep].copy(), q=q[keep], qd=qd[keep], qdd=qdd[keep], tau=tau[keep], dt=dt, robot=robot,
             sources=[r.source], filter=fs, segment=np.full(len(r.t) - 2 * m, k), jitter=stats["jitter"],
-            warnings=stats["warnings"],
+            warnings=stats["warnings"], position_counts=stats["counts"],
         ))
     data = IdentData.concatenate(parts) if len(parts) > 1 else parts[0]
     for w in data.warnings:

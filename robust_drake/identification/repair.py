@@ -30,7 +30,7 @@ import numpy as np
 
 from robust_drake.errors import RobustDrakeError
 from robust_drake.identification import residual as R
-from robust_drake.identification.data import DEFAULT_CUTOFF_HZ, DataWarning, IdentData, load
+from robust_drake.identification.data import DEFAULT_CUTOFF_HZ, DataWarning, IdentData, frozen_joints, load
 from robust_drake.identification.least_squares import load_regressor
 from robust_drake.identification.selection import (
     MIN_GAIN, ColumnCache, effect_label, fit_model, forward_select, predict_tau,
@@ -133,14 +133,140 @@ def plausibility(kind: str, params: dict, robot: str) -> str:
     return kind
 
 
-def run_repair(fit_paths, options: RepairOptions, validate_paths=None, out_dir=None, progress=None) -> dict:
-    """The whole loop; writes ``report.json``/``report.md``/plots into ``out_dir`` when given."""
+REPORT_FILES = ("report.md", "report.json")
+
+
+def check_output_dir(out_dir, overwrite: bool) -> str:
+    """Check ``out_dir`` *before* any computation; return its absolute path.
+
+    Refused: an empty name, a path that is a file, a folder that holds an earlier report
+    (``report.md`` or ``report.json``) unless ``overwrite``, and a place where no folder can be
+    created (probed by creating and removing a temporary folder next to it).
+    """
+    import tempfile
+
+    text = os.fspath(out_dir)
+    if not str(text).strip():
+        raise RobustDrakeError("--out is empty: give the folder for report.md, report.json and the plots")
+    path = os.path.abspath(text)
+    if os.path.exists(path) and not os.path.isdir(path):
+        raise RobustDrakeError(f"--out {text} is a file, not a folder; choose a folder name")
+    if os.path.isdir(path) and not overwrite:
+        held = [f for f in REPORT_FILES if os.path.exists(os.path.join(path, f))]
+        if held:
+            raise RobustDrakeError(
+                f"{text} holds an earlier repair report ({', '.join(held)}); choose another --out or "
+                "pass --force to replace it")
+    parent = os.path.dirname(path)
+    try:
+        os.makedirs(parent, exist_ok=True)
+        probe = tempfile.mkdtemp(prefix=f".{os.path.basename(path)}.probe-", dir=parent)
+        os.rmdir(probe)
+        if os.path.isdir(path):
+            fd, probe = tempfile.mkstemp(prefix=".probe-", dir=path)
+            os.close(fd)
+            os.remove(probe)
+    except OSError as exc:
+        raise RobustDrakeError(f"cannot write the report to --out {text}: "
+                               f"{exc.strerror or exc} ({exc.filename or parent})") from exc
+    return path
+
+
+#: plot files a repair report may hold (removed with the report it belongs to)
+REPORT_PLOTS = ("residual_fit.png", "residual_validate.png", "torque_validate.png", "estimator_cutoff.png")
+
+
+def _report_artefacts(out: str) -> set[str]:
+    """Names in ``out`` that belong to an earlier report: report.md/json and its plots."""
+    names = set(REPORT_FILES) | set(REPORT_PLOTS)
+    try:
+        with open(os.path.join(out, "report.json")) as fh:
+            names |= {os.path.basename(str(p)) for p in (json.load(fh).get("plots") or [])}
+    except (OSError, ValueError, AttributeError):
+        pass
+    return {n for n in names if os.path.isfile(os.path.join(out, n))}
+
+
+def _publish(tmp: str, out: str, keep: list[str]) -> None:
+    """Move the complete report folder ``tmp`` into place at ``out``.
+
+    * ``out`` absent: one atomic ``rename``.
+    * ``out`` without an earlier report (e.g. a folder holding the input CSVs): the new files are
+      moved in one by one (nothing of value is replaced).
+    * ``out`` with an earlier report (``overwrite``) and nothing else but this run's inputs
+      ``keep``: the inputs are copied into ``tmp``, ``out`` is renamed aside, ``tmp`` renamed to
+      ``out`` and the old folder removed -- the old report's plots do not survive beside the new
+      one. If the second rename fails, the old folder is put back.
+    * ``out`` with an earlier report *and* other files (not ours to delete): the earlier report's
+      files (report.md/json and its plots) are removed and the new ones moved in.
+    In every case the report is complete in ``tmp`` before anything in ``out`` is touched.
+    """
+    import shutil
+    import tempfile
+
+    if not os.path.exists(out):
+        os.rename(tmp, out)
+        return
+    old_report = _report_artefacts(out)
+    keep_top = {os.path.relpath(k, out).split(os.sep)[0] for k in keep}
+    foreign = set(os.listdir(out)) - old_report - keep_top
+    if not old_report or foreign:
+        for name in old_report:
+            os.remove(os.path.join(out, name))
+        for name in os.listdir(tmp):
+            os.replace(os.path.join(tmp, name), os.path.join(out, name))
+        os.rmdir(tmp)
+        return
+    for src in keep:
+        dst = os.path.join(tmp, os.path.relpath(src, out))
+        if not os.path.exists(dst):
+            os.makedirs(os.path.dirname(dst), exist_ok=True)
+            shutil.copy2(src, dst)
+    old = tempfile.mkdtemp(prefix=f".{os.path.basename(out)}.old-", dir=os.path.dirname(out))
+    os.rmdir(old)
+    os.rename(out, old)
+    try:
+        os.rename(tmp, out)
+    except BaseException:
+        os.rename(old, out)
+        raise
+    shutil.rmtree(old, ignore_errors=True)
+
+
+def _inputs_inside(paths, out: str) -> list[str]:
+    out_real = os.path.realpath(out)
+    inside = []
+    for p in paths:
+        if isinstance(p, (str, os.PathLike)) and os.path.isfile(p):
+            real = os.path.realpath(p)
+            if os.path.commonpath([real, out_real]) == out_real:
+                inside.append(real)
+    return inside
+
+
+def run_repair(fit_paths, options: RepairOptions, validate_paths=None, out_dir=None, progress=None,
+               overwrite: bool = True) -> dict:
+    """The whole loop; writes ``report.json``/``report.md``/plots into ``out_dir`` when given.
+
+    The output folder is checked before the computation (:func:`check_output_dir`; with
+    ``overwrite=False`` an earlier report there is refused, as the command line does without
+    ``--force``), the report is written into a temporary folder beside it and moved into place
+    only when complete (:func:`_publish`): a failure part-way leaves an earlier report untouched.
+    """
+    from robust_drake.identification import input_checks as IC
+
     log = progress or (lambda msg: None)
     opts = options
+    out_path = check_output_dir(out_dir, overwrite) if out_dir is not None else None
+    IC.check_distinct_files(fit_paths, validate_paths)
+    _check_robot_urdf(opts.robot)
+    input_warnings: list[str] = []
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", DataWarning)
         regressor = load_regressor(opts.robot)
         n = getattr(regressor, "n", None)
+        if getattr(regressor, "plant", None) is not None:
+            input_warnings += IC.prismatic_warnings(regressor.plant)
         data = load(fit_paths, robot=opts.robot, n_joints=n, torque=opts.torque, cutoff_hz=opts.cutoff_hz)
         notes = list(opts.notes)
         if validate_paths:
@@ -153,6 +279,16 @@ def run_repair(fit_paths, options: RepairOptions, validate_paths=None, out_dir=N
                          "held out (contiguous tail) as validation data")
         log(f"data: fit {fit.N} samples ({len(fit.sources)} files), validate {val.N} samples")
         cf, cv = ColumnCache(fit, regressor), ColumnCache(val, regressor)
+        _, budget_warning = IC.sample_budget(fit, cf.base.shape[2])
+        if budget_warning:
+            input_warnings.append(budget_warning)
+        units, unit_warnings = IC.torque_scale_check(fit, regressor)
+        input_warnings += unit_warnings
+        frozen = frozen_joints(data)
+        for j in frozen:
+            input_warnings.append(
+                f"joint {j} (q{j + 1}) moves within {data.position_counts[j]:.0f} encoder count(s) in every fit "
+                "file: its parameters are unidentifiable (excite that joint)")
 
         # ---- baseline: rigid body + Coulomb + viscous
         if opts.weighted:  # two-step WLS on the baseline fixes the per-joint weights of the selection
@@ -309,8 +445,10 @@ def run_repair(fit_paths, options: RepairOptions, validate_paths=None, out_dir=N
             except RobustDrakeError as exc:
                 notes.append(f"replay failed: {exc}")
 
-    warn_msgs = sorted({str(w.message) for w in caught})
+    warn_msgs = list(dict.fromkeys(input_warnings + sorted({str(w.message) for w in caught})))
     ident = base_fit.as_dict()
+    unident = list(base_fit.unidentifiable) + [
+        f"joint {j} (q{j + 1} within {data.position_counts[j]:.0f} encoder counts)" for j in frozen]
     report = {
         "robot": str(opts.robot),
         "samples": int(fit.N),
@@ -329,7 +467,8 @@ def run_repair(fit_paths, options: RepairOptions, validate_paths=None, out_dir=N
         "replay": replay_out,
         "consistent": consistent,
         "identifiability": {"condition_number": base_fit.cond, "rank": base_fit.rank,
-                            "unidentifiable": base_fit.unidentifiable},
+                            "unidentifiable": unident, "unidentifiable_joints": frozen},
+        "units": units,
         "selection": {"steps": [s.as_dict() for s in steps], "min_gain": opts.min_gain,
                       "candidates": len(cands), "last_ranking": ranking[:12],
                       "rule": "blocked 4-fold held-out error, gain >= min_gain and BIC (N_eff) decreasing"},
@@ -340,24 +479,50 @@ def run_repair(fit_paths, options: RepairOptions, validate_paths=None, out_dir=N
         "notes": notes,
     }
     report = _strict(report)
-    if out_dir:
-        os.makedirs(out_dir, exist_ok=True)
-        if opts.plots:
-            report["plots"] = _plots(out_dir, fit, val, base_fit, final_fit, base_val_r, final_val_r, cf, cv, chosen)
-            if estimator.get("hausman") and fit_paths_are_files(fit_paths):
-                from robust_drake.identification import instruments as IV
+    if out_path is not None:
+        import shutil
+        import tempfile
 
-                fc = fit.filter.cutoff_hz
-                sweep = IV.cutoff_sweep(fit_paths, opts.robot, regressor, [0.5 * fc, 0.75 * fc, fc, 1.5 * fc],
-                                        torque=opts.torque, weights=weights, n_joints=fit.n)
-                report["estimator"]["cutoff_sweep"] = sweep
-                IV.plot_cutoff_sweep(sweep, os.path.join(out_dir, "estimator_cutoff.png"))
-                report["plots"].append("estimator_cutoff.png")
-        with open(os.path.join(out_dir, "report.json"), "w") as fh:
-            json.dump(report, fh, indent=2, default=_json_default, allow_nan=False)
-        with open(os.path.join(out_dir, "report.md"), "w") as fh:
-            fh.write(render_markdown(report))
+        tmp = tempfile.mkdtemp(prefix=f".{os.path.basename(out_path)}.tmp-", dir=os.path.dirname(out_path))
+        try:
+            umask = os.umask(0)
+            os.umask(umask)
+            os.chmod(tmp, 0o777 & ~umask)  # mkdtemp makes it private; the report folder is not
+            if opts.plots:
+                report["plots"] = _plots(tmp, fit, val, base_fit, final_fit, base_val_r, final_val_r, cf, cv, chosen)
+                if estimator.get("hausman") and fit_paths_are_files(fit_paths):
+                    from robust_drake.identification import instruments as IV
+
+                    fc = fit.filter.cutoff_hz
+                    sweep = IV.cutoff_sweep(fit_paths, opts.robot, regressor, [0.5 * fc, 0.75 * fc, fc, 1.5 * fc],
+                                            torque=opts.torque, weights=weights, n_joints=fit.n)
+                    report["estimator"]["cutoff_sweep"] = sweep
+                    IV.plot_cutoff_sweep(sweep, os.path.join(tmp, "estimator_cutoff.png"))
+                    report["plots"].append("estimator_cutoff.png")
+            write_report_files(report, tmp)
+            _publish(tmp, out_path, _inputs_inside(list(fit_paths) + list(validate_paths or []), out_path))
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
     return report
+
+
+def write_report_files(report: dict, folder: str) -> None:
+    """``report.json`` (strict JSON) and ``report.md`` (rendered from the same dict) in ``folder``."""
+    text_json = json.dumps(report, indent=2, default=_json_default, allow_nan=False)
+    text_md = render_markdown(report)
+    with open(os.path.join(folder, "report.json"), "w") as fh:
+        fh.write(text_json)
+    with open(os.path.join(folder, "report.md"), "w") as fh:
+        fh.write(text_md)
+
+
+def _check_robot_urdf(robot) -> None:
+    """Masses and inertias of the robot's URDF (input_checks.check_urdf_inertials), before Drake."""
+    from robust_drake.identification.input_checks import check_urdf_inertials
+    from robust_drake.models import resolve_urdf
+
+    check_urdf_inertials(resolve_urdf(robot))
 
 
 def _choose_estimator(opts, fit_paths, have_validation, data, fit, val, cf, cv, regressor, chosen, weights,
@@ -523,9 +688,14 @@ def _plots(out_dir, fit, val, base_fit, final_fit, base_val_r, final_val_r, cf, 
     return [os.path.basename(x) for x in paths]
 
 
+def _num(x, spec: str) -> str:
+    """``format(x, spec)``, or "n/a" for a value the strict report holds as null (NaN/inf)."""
+    return "n/a" if x is None else format(x, spec)
+
+
 def render_markdown(rep: dict) -> str:
     n = len(rep["baseline"]["rms_fit"])
-    fmt = lambda xs: ", ".join(f"{x:.4f}" for x in xs)  # noqa: E731
+    fmt = lambda xs: ", ".join(f"{_num(x, '.4f')}" for x in xs)  # noqa: E731
     L = [f"# Repair report: {rep['robot']}", ""]
     L += [f"Fit samples: {rep['samples']} ({len(rep['data']['fit']['sources'])} files); validation samples: "
           f"{rep['samples_validate']} ({rep['data']['validation_source']}). Torque column: `{rep['torque']}`.",
@@ -534,23 +704,23 @@ def render_markdown(rep: dict) -> str:
     L += ["## Error before and after (RMS torque residual per joint, N m)", "",
           "| model | " + " | ".join(f"fit j{j}" for j in range(n)) + " | " + " | ".join(f"validate j{j}" for j in range(n)) + " |",
           "|---|" + "---|" * (2 * n)]
-    L.append("| baseline (rigid body + Coulomb + viscous) | " + " | ".join(f"{x:.4f}" for x in rep["baseline"]["rms_fit"])
-             + " | " + " | ".join(f"{x:.4f}" for x in rep["baseline"]["rms_validate"]) + " |")
+    L.append("| baseline (rigid body + Coulomb + viscous) | " + " | ".join(f"{_num(x, '.4f')}" for x in rep["baseline"]["rms_fit"])
+             + " | " + " | ".join(f"{_num(x, '.4f')}" for x in rep["baseline"]["rms_validate"]) + " |")
     for e in rep["effects"]:
         L.append(f"| + {e['label']} | " + " | ".join("" for _ in range(n)) + " | "
-                 + " | ".join(f"{x:.4f}" for x in e["rms_validate_after"]) + " |")
-    L.append("| **repaired** | " + " | ".join(f"{x:.4f}" for x in rep["final"]["rms_fit"]) + " | "
-             + " | ".join(f"**{x:.4f}**" for x in rep["final"]["rms_validate"]) + " |")
+                 + " | ".join(f"{_num(x, '.4f')}" for x in e["rms_validate_after"]) + " |")
+    L.append("| **repaired** | " + " | ".join(f"{_num(x, '.4f')}" for x in rep["final"]["rms_fit"]) + " | "
+             + " | ".join(f"**{_num(x, '.4f')}**" for x in rep["final"]["rms_validate"]) + " |")
     if rep.get("consistent"):
         c = rep["consistent"]
-        L.append(f"| repaired, physically consistent ({c['solver']}) | " + " | ".join(f"{x:.4f}" for x in c["rms_fit"])
-                 + " | " + " | ".join(f"{x:.4f}" for x in c["rms_validate"]) + " |")
+        L.append(f"| repaired, physically consistent ({c['solver']}) | " + " | ".join(f"{_num(x, '.4f')}" for x in c["rms_fit"])
+                 + " | " + " | ".join(f"{_num(x, '.4f')}" for x in c["rms_validate"]) + " |")
     L += ["", "## Effects added", ""]
     if not rep["effects"]:
         L.append("None: no candidate passed the stopping rule.")
     for e in rep["effects"]:
-        ps = ", ".join(f"{k} = {v:.4g}" if isinstance(v, float) else f"{k} = {v}" for k, v in e["parameters"].items())
-        L.append(f"- **{e['kind']}** (joint {e['joint']}): {ps}; {'held-out error -' + format(e['heldout_gain'], '.1%') if e.get('heldout_gain') is not None else 'named from the base-parameter shift against the URDF'}; "
+        ps = ", ".join(f"{k} = {_num(v, '.4g')}" if isinstance(v, float) else f"{k} = {v}" for k, v in e["parameters"].items())
+        L.append(f"- **{e['kind']}** (joint {e['joint']}): {ps}; {'held-out error -' + _num(e['heldout_gain'], '.1%') if e.get('heldout_gain') is not None else 'named from the base-parameter shift against the URDF'}; "
                  f"confidence {e['confidence']}. Why plausible: {e['plausibility']}.")
     est = rep.get("estimator") or {}
     if est.get("hausman"):
@@ -560,12 +730,12 @@ def render_markdown(rep: dict) -> str:
               "the torque does not cause (motion through gear backlash at reversals, vibration, "
               "differentiated encoder noise) biases least squares towards smaller parameters. Test: instrumental variables "
               f"(the same columns low-passed at {est['instrument_cutoff_hz']:g} Hz) against least squares, "
-              f"Durbin-Wu-Hausman statistic {h['statistic']:.1f} over {h['dof']} dof (1 % limit "
-              f"{h['limit']:.1f}): " + ("**significant: the repaired model uses the IV estimate.**"
+              f"Durbin-Wu-Hausman statistic {_num(h['statistic'], '.1f')} over {h['dof']} dof (1 % limit "
+              f"{_num(h['limit'], '.1f')}): " + ("**significant: the repaired model uses the IV estimate.**"
                                         if est["method"] == "instrumental_variables" else
                                         "not significant: least squares kept."), "",
               "Baseline structure with the IV estimate (the estimator's share of the change): validate "
-              + ", ".join(f"{x:.4f}" for x in est["baseline_iv"]["rms_validate"]) + " N m. On a held-out "
+              + ", ".join(f"{_num(x, '.4f')}" for x in est["baseline_iv"]["rms_validate"]) + " N m. On a held-out "
               "tail of the *same* runs the IV torque error can be higher than LS's (LS is the best "
               "equation-error predictor given equally noisy columns); the replay below judges the motion."]
     nom = rep.get("nominal")
@@ -574,40 +744,40 @@ def render_markdown(rep: dict) -> str:
               "Effects whose columns lie in the span of the rigid-body regressor (a tool payload, a rotor "
               "inertia already inside a base parameter) are absorbed exactly by a free fit; they show up "
               "only as a shift of the base parameters away from the URDF's. Shift chi^2 "
-              f"{nom['chi2']:.1f} over {nom['dof']} parameters (99 % limit {nom['chi2_limit']:.1f}; URDF "
-              f"trusted to {nom['sigma_rel']:.0%} of each parameter): "
+              f"{_num(nom['chi2'], '.1f')} over {nom['dof']} parameters (99 % limit {_num(nom['chi2_limit'], '.1f')}; URDF "
+              f"trusted to {_num(nom['sigma_rel'], '.0%')} of each parameter): "
               + ("**not significant**." if not nom["significant"] else
                  f"**explained by {nom['named']}**." if nom.get("named") else
                  "**significant and not explained** by any in-span effect: the URDF's inertial "
                  "parameters and the fitted ones disagree in a way no single payload or rotor inertia explains."),
               "", f"URDF parameters with fitted friction/effects: validate "
-              + ", ".join(f"{x:.4f}" for x in nom["rms_validate"]) + " N m.", "",
+              + ", ".join(f"{_num(x, '.4f')}" for x in nom["rms_validate"]) + " N m.", "",
               "| in-span candidate | parameters | chi^2 after | decision |", "|---|---|---|---|"]
         for c in nom["span_candidates"]:
-            ps = ", ".join(f"{k} = {v:.4g}" for k, v in c["parameters"].items())
-            L.append(f"| {c['label']} | {ps} | {c['chi2_after']:.1f} | {c['reason']} |")
+            ps = ", ".join(f"{k} = {_num(v, '.4g')}" for k, v in c["parameters"].items())
+            L.append(f"| {c['label']} | {ps} | {_num(c['chi2_after'], '.1f')} | {c['reason']} |")
     L += ["", "## Selection steps", "", "| step | best candidate | held-out score before -> after | BIC before -> after | decision |",
           "|---|---|---|---|---|"]
     for s in rep["selection"]["steps"]:
-        L.append(f"| {s['step']} | {s['label']} | {s['score_before']:.4f} -> {s['score_after']:.4f} | "
-                 f"{s['bic_before']:.1f} -> {s['bic_after']:.1f} | {'added' if s['accepted'] else 'stop'}: {s['reason']} |")
-    L += ["", f"Rule: {rep['selection']['rule']}; min gain {rep['selection']['min_gain']:.0%}; "
+        L.append(f"| {s['step']} | {s['label']} | {_num(s['score_before'], '.4f')} -> {_num(s['score_after'], '.4f')} | "
+                 f"{_num(s['bic_before'], '.1f')} -> {_num(s['bic_after'], '.1f')} | {'added' if s['accepted'] else 'stop'}: {s['reason']} |")
+    L += ["", f"Rule: {rep['selection']['rule']}; min gain {_num(rep['selection']['min_gain'], '.0%')}; "
           f"{rep['selection']['candidates']} candidates. Scores are relative to the baseline's held-out error.", ""]
     L += ["## Residual structure", ""]
     if rep["unexplained_structure"]:
-        where = "; ".join(f"joint {w['joint']} vs {w['variable']} (eta^2 = {w['eta2']:.3f})" for w in rep["unexplained_where"])
+        where = "; ".join(f"joint {w['joint']} vs {w['variable']} (eta^2 = {_num(w['eta2'], '.3f')})" for w in rep["unexplained_where"])
         col = rep["residual"]["final"]["coloured"]
         L.append("**unexplained_structure: true.** The repaired model's residual still depends on the state "
                  f"where no library effect explains it: {where or 'none by state'}"
                  + (f"; coloured residual on joints {[c['joint'] for c in col]}" if col else "") + ".")
     else:
         L.append("unexplained_structure: false (no state variable explains >= "
-                 f"{R.ETA_MIN:.0%} of the residual variance at p < {R.ALPHA}).")
+                 f"{_num(R.ETA_MIN, '.0%')} of the residual variance at p < {R.ALPHA}).")
     L.append("")
     L.append("Strongest state dependences of the final residual (eta^2 = share of residual variance explained by a "
              "binned function of the variable):")
     for d in rep["residual"]["final"]["state_dependence_top"][:6]:
-        L.append(f"- joint {d['joint']} vs {d['variable']}: eta^2 = {d['eta2']:.3f}")
+        L.append(f"- joint {d['joint']} vs {d['variable']}: eta^2 = {_num(d['eta2'], '.3f')}")
     rp = rep.get("replay") or {}
     if rp.get("before") and rp.get("after"):
         L += ["", "## Replay of the measured torques through the Drake plant", "",
@@ -618,7 +788,7 @@ def render_markdown(rep: dict) -> str:
               f"| after (repaired + effect blocks) | {fmt(rp['after']['rms_q'])} | {fmt(rp['after']['rms_q_end'])} |"]
     ident = rep["identifiability"]
     L += ["", "## Identifiability", "",
-          f"Condition number of the column-normalised baseline regressor: {ident['condition_number']:.3g}; "
+          f"Condition number of the column-normalised baseline regressor: {_num(ident['condition_number'], '.3g')}; "
           f"unidentifiable: {', '.join(ident['unidentifiable']) or 'none'}."]
     if rep.get("warnings"):
         L += ["", "## Warnings", ""] + [f"- {w}" for w in rep["warnings"]]
@@ -653,8 +823,10 @@ def run_repair_demo(out_dir: str, kind: str = "stribeck", seed: int = 0, progres
     for e in rep["effects"]:
         log(f"found {e['kind']} on joint {e['joint']}: "
             + ", ".join(f"{k} = {v:.4g}" for k, v in e["parameters"].items() if isinstance(v, float)))
-    with open(os.path.join(out_dir, "report.json"), "w") as fh:
+    tmp_json = os.path.join(out_dir, ".report.json.tmp")
+    with open(tmp_json, "w") as fh:
         json.dump(rep, fh, indent=2, default=_json_default)
+    os.replace(tmp_json, os.path.join(out_dir, "report.json"))  # never a half-written report
     return rep
 
 
