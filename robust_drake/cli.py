@@ -148,6 +148,11 @@ def main(argv: list[str] | None = None) -> int:
     import os
 
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    # The command line writes figures to files only, so its process uses the file backend Agg
+    # (read when matplotlib first loads; worker processes inherit it). The library never picks a
+    # backend; a session that already loaded matplotlib (a notebook calling main()) keeps its own.
+    if "matplotlib" not in sys.modules:
+        os.environ["MPLBACKEND"] = "Agg"
     parser = build_parser()
     args = parser.parse_args(glue_negative_values(parser, sys.argv[1:] if argv is None else list(argv)))
     try:

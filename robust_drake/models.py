@@ -1,7 +1,9 @@
 """Arm models: URDF lookup, Drake plants, and the paper parameter sets.
 
-Every arm of the project is a URDF file in ``models/`` (override the folder with the environment
-variable ``ROBUST_DRAKE_MODELS``).  Conventions shared by all files:
+Every arm of the project is a URDF file shipped as package data in ``robust_drake/robots/``
+(found through ``importlib.resources``, so it works from a checkout and from an installed wheel;
+the repository's top-level ``models/`` is a symlink to that folder).  Override the folder with the
+environment variable ``ROBUST_DRAKE_MODELS``.  Conventions shared by all files:
 
 - joints ``joint1`` .. ``jointn`` (revolute, unlimited), one actuator ``motor<i>`` per joint;
 - link ``i`` has its origin on joint ``i`` and its x axis along the link;
@@ -19,6 +21,7 @@ for the derivation of l1 = l2 = 0.30 m.
 
 from __future__ import annotations
 
+import importlib.resources
 import math
 import os
 import pathlib
@@ -47,7 +50,16 @@ __all__ = [
     "set_d2r2_theta",
 ]
 
-_DEFAULT_MODELS_DIR = pathlib.Path(__file__).resolve().parent.parent / "models"
+
+def _packaged_models_dir() -> pathlib.Path:
+    """The URDF folder inside the installed package (``robust_drake/robots``).
+
+    Package data of a regular (not zipped) install is a real folder, so the Traversable that
+    ``importlib.resources`` returns is a path Drake's parser can open."""
+    return pathlib.Path(os.fspath(importlib.resources.files("robust_drake").joinpath("robots")))
+
+
+_DEFAULT_MODELS_DIR = _packaged_models_dir()
 MODELS_DIR: pathlib.Path = pathlib.Path(os.environ.get("ROBUST_DRAKE_MODELS", _DEFAULT_MODELS_DIR))
 
 
@@ -186,9 +198,10 @@ def resolve_urdf(robot: str | os.PathLike, load: str = "none") -> pathlib.Path:
             )
         path = models_dir() / spec.loads[load]
         if not path.is_file():
+            hint = ("check ROBUST_DRAKE_MODELS" if os.environ.get("ROBUST_DRAKE_MODELS")
+                    else "the installed package lacks its URDF data; reinstall robust_drake")
             raise RobustDrakeError(
-                f"URDF for robot {text!r} (load {load!r}) not found at {path}; "
-                "check ROBUST_DRAKE_MODELS"
+                f"URDF for robot {text!r} (load {load!r}) not found at {path}; {hint}"
             )
         return path
     if text.endswith(".urdf"):

@@ -331,14 +331,11 @@ def boxplot(df, path, metric: str = "maxerr_task", title: str | None = None,
             also: Sequence[str] = ("error_task",)) -> None:
     """Box plots per controller (ok runs) of ``metric`` and of the ``also`` metrics, one panel
     each, worst case marked with a red triangle; saved to ``path``."""
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
+    from robust_drake.plotting import subplots
 
     metrics = [metric] + [m for m in also if m != metric and m in df.columns]
     ctrls = list(dict.fromkeys(df["controller"]))
-    fig, axes = plt.subplots(1, len(metrics), squeeze=False,
+    fig, axes = subplots(1, len(metrics), squeeze=False,
                              figsize=(0.5 + (1.4 + 1.0 * max(1, len(ctrls))) * len(metrics), 4.0))
     for ax, m in zip(axes[0], metrics):
         groups = [df[(df["controller"] == c) & (df["status"] == "ok")][m].astype(float).dropna()
@@ -355,4 +352,3 @@ def boxplot(df, path, metric: str = "maxerr_task", title: str | None = None,
     fig.tight_layout()
     pathlib.Path(path).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=120)
-    plt.close(fig)

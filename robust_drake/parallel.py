@@ -415,7 +415,10 @@ def _iter_pool(func, items, keys, workers, start_method) -> Iterator[RunOutcome]
 
 
 def _iter_dask(func, items, keys, scheduler) -> Iterator[RunOutcome]:
-    from distributed import Client, as_completed
+    from robust_drake.extras import import_extra
+
+    distributed = import_extra("distributed", "dask", "a Dask scheduler (batch --scheduler)")
+    Client, as_completed = distributed.Client, distributed.as_completed
 
     own_client = False
     if isinstance(scheduler, str):

@@ -1,14 +1,26 @@
-"""Plots a person would rather look at than read (matplotlib, Agg backend, files only)."""
+"""Plots a person would rather look at than read (matplotlib, written to files).
+
+No function here touches pyplot or the matplotlib backend: figures are bare
+``matplotlib.figure.Figure`` objects saved with ``fig.savefig``, so they work under any backend
+(a notebook's inline backend stays as it was; only the command line selects Agg, in
+``robust_drake.cli.main``) and open no window.
+"""
 
 from __future__ import annotations
 
 import pathlib
 
-import matplotlib
+import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+
+def subplots(nrows: int = 1, ncols: int = 1, *, figsize=None, **kwargs):
+    """``(fig, axes)`` like ``pyplot.subplots`` but outside pyplot: a detached ``Figure`` (no
+    backend switch, no GUI window, nothing to close; it is freed with its last reference).
+    ``kwargs`` go to ``Figure.subplots`` (``squeeze``, ``sharex``, ...)."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=figsize)
+    return fig, fig.subplots(nrows, ncols, **kwargs)
 
 
 def _prepare(path) -> pathlib.Path:
@@ -25,7 +37,7 @@ def plot_tracking(result, path, title: str | None = None):
     e = result.q - result.q_d
     n = e.shape[1]
     rows = n + 2 if result.link_lengths else n + 1
-    fig, axes = plt.subplots(rows, 1, figsize=(8, 1.9 * rows), sharex=True)
+    fig, axes = subplots(rows, 1, figsize=(8, 1.9 * rows), sharex=True)
     for j in range(n):
         axes[j].plot(t, e[:, j], lw=0.8)
         axes[j].set_ylabel(f"e{j + 1} [rad]")
@@ -50,5 +62,4 @@ def plot_tracking(result, path, title: str | None = None):
         axes[0].set_title(title)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
     return path

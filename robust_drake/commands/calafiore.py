@@ -22,31 +22,27 @@ def register(subparsers):
 
 def plot_study(out, directory):
     """Analogs of CI figs. 3-6: reference, nominal and robust tracking errors, torques."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from robust_drake.plotting import subplots
 
     os.makedirs(directory, exist_ok=True)
     logs = out["runs"][0]["_logs"]
     t = logs["nominal"]["t"]
-    fig, ax = plt.subplots()
+    fig, ax = subplots()
     ax.plot(t, logs["nominal"]["q_d"])
     ax.set(xlabel="t [s]", ylabel="q_d [rad]", title="joint reference (CI fig. 4)")
     fig.savefig(os.path.join(directory, "fig4_reference.png"))
     for law, num in (("nominal", 5), ("robust", 6)):
-        fig, ax = plt.subplots()
+        fig, ax = subplots()
         ax.plot(logs[law]["t"], logs[law]["e"])
         ax.set(xlabel="t [s]", ylabel="e [rad]", title=f"tracking errors, {law} control (CI fig. {num})")
         ax.legend(["joint 1", "joint 2"])
         fig.savefig(os.path.join(directory, f"fig{num}_{law}_errors.png"))
-    fig, ax = plt.subplots()
+    fig, ax = subplots()
     for law in ("nominal", "robust"):
         ax.plot(logs[law]["t"], logs[law]["u"], label=[f"{law} 1", f"{law} 2"])
     ax.set(xlabel="t [s]", ylabel="u [N m]", title="commanded torques")
     ax.legend()
     fig.savefig(os.path.join(directory, "torques.png"))
-    plt.close("all")
 
 
 def run(args) -> int:

@@ -12,7 +12,7 @@ def register(sub):
                        description="Run one closed loop (plant + friction + encoder + observer + controller "
                                    "+ saturation) and print |error_n|, maxerr_n, |error_task|, maxerr_task "
                                    "(Jaritz & Spong eqs. 55, 56, 58, 59).")
-    p.add_argument("--robot", default="d2r2", help="robot name in models/ or a URDF path (default d2r2)")
+    p.add_argument("--robot", default="d2r2", help="robot name (URDFs shipped in robust_drake/robots/) or a URDF path (default d2r2)")
     p.add_argument("--load", default="none", help="load variant: none | max (default none)")
     p.add_argument("--controller", default="sp1", help="controller name (pd, sp1, sp2, ...; default sp1)")
     p.add_argument("--trajectory", default="cpt", help="cpt | circle | refmodel | sine | step | line (default cpt)")

@@ -126,12 +126,8 @@ def plot_case_study(study: dict, outdir, other: dict | None = None) -> list:
     gains) for fig. 6. Needs ``keep_results=True`` studies. Returns the paths written."""
     import pathlib
 
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     from robust_drake.kinematics import planar_forward_kinematics
+    from robust_drake.plotting import subplots
 
     outdir = pathlib.Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
@@ -142,21 +138,20 @@ def plot_case_study(study: dict, outdir, other: dict | None = None) -> list:
         p = outdir / name
         fig.tight_layout()
         fig.savefig(p, dpi=120)
-        plt.close(fig)
         paths.append(str(p))
 
-    fig, ax = plt.subplots(1, 1, figsize=(6, 3.5))
+    fig, ax = subplots(1, 1, figsize=(6, 3.5))
     ax.plot(rA.t, rA.q_d[:, 0], label="q1_d")
     ax.plot(rA.t, rA.q_d[:, 1], label="q2_d")
     ax.set_xlabel("t [s]"), ax.set_ylabel("rad"), ax.legend(), ax.set_title("Fig. 1: joint space trajectory")
     save(fig, "fig1_joint_trajectory.png")
-    fig, ax = plt.subplots(1, 1, figsize=(5, 5))
+    fig, ax = subplots(1, 1, figsize=(5, 5))
     p = planar_forward_kinematics(rA.q_d, (1.0, 1.0))
     ax.plot(p[:, 0], p[:, 1])
     ax.set_aspect("equal"), ax.set_xlabel("x [m]"), ax.set_ylabel("y [m]"), ax.set_title("Fig. 2: Cartesian trajectory")
     save(fig, "fig2_cartesian_trajectory.png")
     for j, (fname, label) in enumerate([("fig3_w_base.png", "base"), ("fig4_w_elbow.png", "elbow")]):
-        fig, ax = plt.subplots(1, 1, figsize=(7, 3.5))
+        fig, ax = subplots(1, 1, figsize=(7, 3.5))
         ax.plot(rA.t, rA.extra["w"][:, j], "r-", lw=0.8, label="Case A")
         ax.plot(rB.t, rB.extra["w"][:, j], "b:", lw=1.0, label="Case B")
         ax.set_xlabel("t [s]"), ax.set_ylabel("w [rad/s^2]"), ax.legend()
@@ -166,7 +161,7 @@ def plot_case_study(study: dict, outdir, other: dict | None = None) -> list:
         if st is None:
             continue
         (ra, _), (rb, _) = st["_results"]["A"], st["_results"]["B"]
-        fig, ax = plt.subplots(1, 1, figsize=(7, 3.5))
+        fig, ax = subplots(1, 1, figsize=(7, 3.5))
         ax.plot(ra.t, ra.extra["rho"][:, 0], "r-", label="Case A")
         ax.plot(rb.t, rb.extra["rho"][:, 0], "b:", label="Case B")
         g = st["gains"]

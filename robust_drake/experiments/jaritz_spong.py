@@ -219,10 +219,7 @@ def plot_table(table: int, rows: list[dict], out_dir) -> pathlib.Path:
     """Figure analog for a table: per controller, joint errors (and task-space error) and torques.
 
     Tables 5 and 7 are the runs of JS figures 4-7 and 8-11 (maximum load, compensation)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from robust_drake.plotting import subplots
 
     from robust_drake.kinematics import planar_forward_kinematics
     from robust_drake.models import get_arm
@@ -233,7 +230,7 @@ def plot_table(table: int, rows: list[dict], out_dir) -> pathlib.Path:
     if not rows:
         raise RobustDrakeError("plot_table needs rows run with logs=True")
     L = get_arm("d2r2").link_lengths
-    fig, axes = plt.subplots(len(rows), 2, figsize=(11, 2.6 * len(rows)), squeeze=False)
+    fig, axes = subplots(len(rows), 2, figsize=(11, 2.6 * len(rows)), squeeze=False)
     for ax_row, r in zip(axes, rows):
         lg = r["logs"]
         t = np.asarray(lg["t"])
@@ -258,7 +255,6 @@ def plot_table(table: int, rows: list[dict], out_dir) -> pathlib.Path:
     fig.tight_layout()
     path = out_dir / f"table{table}.png"
     fig.savefig(path, dpi=90)
-    plt.close(fig)
     return path
 
 
@@ -295,14 +291,11 @@ def sweep_rate(controllers=("sp1", "sp2", "zc"), rates=(250, 500, 1000, 2500, 50
 
 
 def plot_sweep(rows: list[dict], path) -> pathlib.Path:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from robust_drake.plotting import subplots
 
     path = pathlib.Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 3.8))
+    fig, (a1, a2) = subplots(1, 2, figsize=(10, 3.8))
     for c in dict.fromkeys(r["controller"] for r in rows):
         rs = sorted((r for r in rows if r["controller"] == c), key=lambda r: r["rate"])
         rate = [r["rate"] for r in rs]
@@ -322,5 +315,4 @@ def plot_sweep(rows: list[dict], path) -> pathlib.Path:
     a2.set_title("chattering")
     fig.tight_layout()
     fig.savefig(path, dpi=90)
-    plt.close(fig)
     return path

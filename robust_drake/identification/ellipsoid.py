@@ -532,7 +532,9 @@ def _drake_run(prog, x, data, solver, tol, solver_options=None):
 
 
 def _solve_cvxpy(data: SDPData, solver: str):
-    import cvxpy as cp
+    from robust_drake.extras import import_extra
+
+    cp = import_extra("cvxpy", "cvxpy", "the cvxpy backend")
 
     x = cp.Variable(data.nv)
     cons = []
@@ -568,7 +570,9 @@ def _solve_cvxpy(data: SDPData, solver: str):
 def _solve_clarabel_direct(data: SDPData, tol: float | None = None):
     """The same conic program handed straight to the pip ``clarabel`` package (no modelling
     layer): s = b - A x in {R+^k, PSD triangles}; svec column-major upper, off-diagonals * sqrt 2."""
-    import clarabel
+    from robust_drake.extras import import_extra
+
+    clarabel = import_extra("clarabel", "cvxpy", "the 'direct' backend (pip clarabel)")
 
     A_blocks, b_blocks, cones = [], [], []
     if data.nonneg.size:

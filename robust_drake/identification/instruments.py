@@ -137,17 +137,14 @@ def cutoff_sweep(paths, robot, regressor, cutoffs, torque: str = "tau_meas", wei
 def plot_cutoff_sweep(sweep: dict, path: str, top: int = 4) -> str:
     """LS and IV parameters / URDF value against the cut-off, for the ``top`` largest nominal
     parameters (one panel each); writes ``path``."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from robust_drake.plotting import subplots
 
     nom = np.asarray(sweep["nominal"])
     idx = [k for k in np.argsort(-np.abs(nom)) if abs(nom[k]) > 1e-9 * max(np.abs(nom).max(), 1e-300)][:top]
     if not idx:
         raise ValueError("no non-zero nominal parameter to normalise by")
     ls, iv, fc = np.asarray(sweep["least_squares"]), np.asarray(sweep["instrumental_variables"]), sweep["cutoff_hz"]
-    fig, axes = plt.subplots(1, len(idx), figsize=(3.2 * len(idx), 2.8), squeeze=False)
+    fig, axes = subplots(1, len(idx), figsize=(3.2 * len(idx), 2.8), squeeze=False)
     for ax, k in zip(axes[0], idx):
         ax.plot(fc, ls[:, k] / nom[k], "o-", label="least squares")
         ax.plot(fc, iv[:, k] / nom[k], "s-", label="instrumental variables")
@@ -160,7 +157,6 @@ def plot_cutoff_sweep(sweep: dict, path: str, top: int = 4) -> str:
                  "cut-off lets more of them through)", fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=80)
-    plt.close(fig)
     return path
 
 

@@ -657,10 +657,7 @@ def _json_default(o):
 
 
 def _plots(out_dir, fit, val, base_fit, final_fit, base_val_r, final_val_r, cf, cv, chosen) -> list[str]:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from robust_drake.plotting import subplots
 
     paths = [
         R.plot_residuals(fit, base_fit.residual, os.path.join(out_dir, "residual_fit.png"),
@@ -669,7 +666,7 @@ def _plots(out_dir, fit, val, base_fit, final_fit, base_val_r, final_val_r, cf, 
         R.plot_residuals(val, base_val_r, os.path.join(out_dir, "residual_validate.png"),
                          "validation data: baseline (red) vs repaired (blue)", other=final_val_r),
     ]
-    fig, axes = plt.subplots(val.n, 1, figsize=(11, 2.6 * val.n), squeeze=False)
+    fig, axes = subplots(val.n, 1, figsize=(11, 2.6 * val.n), squeeze=False)
     pb = val.tau - base_val_r
     pf = val.tau - final_val_r
     for j in range(val.n):
@@ -683,7 +680,6 @@ def _plots(out_dir, fit, val, base_fit, final_fit, base_val_r, final_val_r, cf, 
     fig.tight_layout()
     p = os.path.join(out_dir, "torque_validate.png")
     fig.savefig(p, dpi=80)
-    plt.close(fig)
     paths.append(p)
     return [os.path.basename(x) for x in paths]
 

@@ -172,15 +172,12 @@ def plot_residuals(data: IdentData, residual: np.ndarray, path: str, title: str 
 
     ``other`` (same shape) overlays a second residual (e.g. after repair) in another colour.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from robust_drake.plotting import subplots
 
     n = data.n
     series = [(residual, labels[0], "tab:red")] + ([(other, labels[1], "tab:blue")] if other is not None else [])
     cols = ["q", "qd", "qdd", "tau", "t", "freq", "reversal"]
-    fig, axes = plt.subplots(n, len(cols), figsize=(3.0 * len(cols), 2.6 * n), squeeze=False)
+    fig, axes = subplots(n, len(cols), figsize=(3.0 * len(cols), 2.6 * n), squeeze=False)
     for j in range(n):
         for r, lab, colr in series:
             for c, (name, x) in enumerate([("q", data.q[:, j]), ("qd", data.qd[:, j]), ("qdd", data.qdd[:, j]),
@@ -209,5 +206,4 @@ def plot_residuals(data: IdentData, residual: np.ndarray, path: str, title: str 
     fig.suptitle(title)
     fig.tight_layout()
     fig.savefig(path, dpi=80)
-    plt.close(fig)
     return path
