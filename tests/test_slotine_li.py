@@ -163,3 +163,105 @@ def test_inputs_are_checked():
         reg.slotine_li(np.zeros(7), np.zeros(7), np.zeros(6), np.zeros(7))
     with pytest.raises(RobustDrakeError):
         reg.slotine_li(np.zeros((3, 7)), np.zeros((2, 7)), np.zeros((3, 7)), np.zeros((3, 7)))
+
+
+# ----------------------------------------------------------------------------- SP1 / SP2 for n joints
+def _ctx(robot, period=1e-3, **cfg):
+    from robust_drake.diagram import ClosedLoopConfig, _arm_for
+    from robust_drake.registry import BuildContext
+
+    c = ClosedLoopConfig(robot=robot, trajectory=cfg.pop("trajectory", "sine"), **cfg).resolved()
+    n = ROBOTS[robot].n
+    return BuildContext(robot=robot, arm=_arm_for(robot, n), load=c.load, n=n, period=period, config=c)
+
+
+@pytest.mark.parametrize("factory", ["make_sp1", "make_sp2"])
+def test_d2r2_scalar_fast_path_equals_the_pure_law(factory):
+    """The D2R2 controllers run eqs. 11-12 in scalar math; that path must equal spong_law
+    (spong_error_terms -> Y -> Y^T r -> robust input -> spong_torque) on random samples, inside and
+    outside the boundary layer."""
+    from robust_drake.systems.controllers import spong, spong_friction
+
+    rng = np.random.default_rng(2)
+    ctrls = [getattr(spong, factory)(_ctx("d2r2", 4e-4, trajectory="cpt")),
+             getattr(spong_friction, factory + "_robust_friction")(_ctx("d2r2", 4e-4, trajectory="cpt"))]
+    for c in ctrls:
+        assert c.scalar_fast_path
+        for scale in (1e-3, 1.0, 30.0):
+            for _ in range(20):
+                q_d, qd_d, qdd_d, q, v, v_err = (scale * rng.normal(size=2) for _ in range(6))
+                fast = c.compute_scalar(q_d, qd_d, qdd_d, q, v, v_err)
+                pure = spong.spong_law(c.regressor, c.robust_input, c.theta0, c.K, c.Lambda,
+                                       q_d, qd_d, qdd_d, q, v, v_err)
+                np.testing.assert_allclose(fast, pure, rtol=1e-12, atol=1e-12 * max(1.0, np.abs(pure).max()))
+
+
+def test_factories_pick_closed_form_or_drake_regressor_and_state_the_set():
+    from robust_drake.systems.controllers.spong import D2R2_RHO_SP1, make_sp1, make_sp2
+
+    c = make_sp1(_ctx("d2r2", 4e-4, trajectory="cpt"))
+    assert c.rho == D2R2_RHO_SP1 and c.uncertainty["kind"] == "box"
+    reg = InverseDynamicsRegressor.from_robot("serial7")
+    th0 = reg.base_parameters()
+    c1 = make_sp1(_ctx("serial7"), rel_bound=0.3)
+    c2 = make_sp2(_ctx("serial7"), rel_bound=0.3)
+    assert not c1.scalar_fast_path
+    np.testing.assert_allclose(c1.theta0, th0)
+    # the box |theta_i - theta0_i| <= 0.3 |theta0_i|: SP1's rho is max ||theta~|| over it, SP2's the b_i
+    assert c1.rho == pytest.approx(0.3 * np.linalg.norm(th0), rel=1e-12)
+    np.testing.assert_allclose(c2.rho, 0.3 * np.abs(th0), rtol=1e-12)
+    vert = 0.3 * np.abs(th0) * np.random.default_rng(0).choice([-1.0, 1.0], size=(50, th0.size))
+    assert np.linalg.norm(vert, axis=1).max() <= c1.rho * (1 + 1e-12)
+    # the controller really evaluates the Drake-derived Slotine-Li regressor
+    rng = np.random.default_rng(3)
+    q, qd, v, a = rng.normal(size=(4, 7))
+    np.testing.assert_allclose(np.asarray(c1.regressor(q, qd, v, a)), reg.slotine_li(q, qd, v, a)[0])
+    with pytest.raises(RobustDrakeError, match="base parameters"):
+        make_sp1(_ctx("serial7"), theta0=[1.0, 2.0])
+    with pytest.raises(RobustDrakeError, match="rel_bound"):
+        make_sp1(_ctx("serial7"), rel_bound=-0.1)
+
+
+@pytest.fixture(scope="module")
+def n_joint_runs():
+    from robust_drake.diagram import ClosedLoopConfig, simulate
+
+    runs = {}
+    for robot in ("siciliano_2link", "serial7"):
+        for ctrl in ("pd", "sp1", "sp2"):
+            runs[(robot, ctrl)] = simulate(ClosedLoopConfig(robot=robot, controller=ctrl, trajectory="sine",
+                                                            rate=1000.0, duration=1.0))
+    return runs
+
+
+@pytest.mark.parametrize("robot", ["siciliano_2link", "serial7"])
+@pytest.mark.parametrize("ctrl", ["sp1", "sp2"])
+def test_spong_tracks_and_beats_pd_with_the_same_gains(n_joint_runs, robot, ctrl):
+    """Sine on every joint from rest (initial velocity error pi/2 rad/s): bounded tracking, and
+    after the transient SP1/SP2 hold the error 100x below PD with the same K, Lambda (PD has no
+    gravity or inertia model)."""
+    sp, pd = n_joint_runs[(robot, ctrl)], n_joint_runs[(robot, "pd")]
+    assert not sp.diverged and not pd.diverged
+    e_sp, e_pd = np.abs(sp.q - sp.q_d), np.abs(pd.q - pd.q_d)
+    late = sp.t > 0.5
+    assert e_sp.max() < 0.05, e_sp.max()
+    assert e_sp[late].max() < 1e-3, e_sp[late].max()
+    assert e_sp[late].max() < 0.01 * e_pd[late].max(), (e_sp[late].max(), e_pd[late].max())
+    assert np.sqrt((e_sp ** 2).mean()) < 0.6 * np.sqrt((e_pd ** 2).mean())
+
+
+def test_simulate_json_reports_uncertainty_and_rho(capsys):
+    import json
+
+    from robust_drake.cli import main as cli_main
+
+    assert cli_main(["simulate", "--robot", "siciliano_2link", "--controller", "sp1", "--trajectory", "sine",
+                     "--duration", "0.05", "--rate", "1000", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    unc = out["uncertainty"]
+    assert unc["kind"] == "box" and unc["rel_bound"] == 0.2
+    assert out["rho"] == pytest.approx(np.linalg.norm(unc["bounds"]))
+    np.testing.assert_allclose(unc["theta0"], InverseDynamicsRegressor.from_robot("siciliano_2link").base_parameters())
+    assert cli_main(["simulate", "--controller", "pd", "--duration", "0.02", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["uncertainty"] is None and out["rho"] is None
