@@ -480,6 +480,119 @@ class InverseDynamicsRegressor:
             self._consts = c
         return c
 
+    # ------------------------------------------------------------------ standard regressor (world frame)
+    def _world_constants(self):
+        """Constants of :meth:`_standard_world`: joint list, parent pose of root nodes, and the
+        support mask (joint j supports node k when j's child body is k or an ancestor of k)."""
+        c = getattr(self, "_wconsts", None)
+        if c is not None:
+            return c
+        nodes = self._nodes
+        ctx0 = self.plant.CreateDefaultContext()
+        roots = {}
+        for k, nd in enumerate(nodes):
+            if nd.parent < 0:
+                X = self.plant.EvalBodyPoseInWorld(ctx0, nd.joint.parent_body())
+                roots[k] = (X.rotation().matrix().copy(), X.translation().copy())
+        joints = [k for k, nd in enumerate(nodes) if nd.kind != "weld"]
+        jpos = {k: i for i, k in enumerate(joints)}
+        nb, nj = len(nodes), len(joints)
+        support = np.zeros((nb, nj))  # support[k, i] = 1 if joint i is on the path of node k
+        for k in range(nb):
+            a = k
+            while a >= 0:
+                if a in jpos:
+                    support[k, jpos[a]] = 1.0
+                a = nodes[a].parent
+        rev = np.array([nodes[k].kind == "revolute" for k in joints])
+        axes = np.array([nodes[k].axis for k in joints]).reshape(nj, 3)
+        c = {"roots": roots, "joints": joints, "jpos": jpos, "support": support, "revolute": rev, "axes": axes,
+             "qi": np.array([nodes[k].qi for k in joints], dtype=int),
+             "vi": np.array([nodes[k].vi for k in joints], dtype=int)}
+        self._wconsts = c
+        return c
+
+    def _standard_world(self, q, v, vd):
+        """The standard regressor (N, n, p_standard) with every body's motion in world (Plucker,
+        world-origin) coordinates, batched over bodies: forward kinematics is the only loop over
+        the tree, then V = sum of S_j qd_j over supporting joints, A = -g + sum(S_j qdd_j +
+        V_j x S_j qd_j), the body regressors K(v_B, a_B) of all bodies in one call, forces to world
+        coordinates, and tau_j = S_j^T (sum over supported bodies).  Same result as the recursive
+        Newton-Euler of :meth:`_standard_numeric_recursive` (tested), with ~4x fewer numpy calls."""
+        N = q.shape[0]
+        nodes = self._nodes
+        nb = len(nodes)
+        wc = self._world_constants()
+        consts = self._node_constants()
+        joints, jpos = wc["joints"], wc["jpos"]
+        nj = len(joints)
+        # joint rotations of all revolute joints at once (Rodrigues)
+        ang = q[:, wc["qi"]]  # (N, nj)
+        Kx = _skew(wc["axes"])  # (nj, 3, 3)
+        c, s = np.cos(ang)[..., None, None], np.sin(ang)[..., None, None]
+        R_FM_all = np.eye(3) + s * Kx + (1 - c) * (Kx @ Kx)  # (N, nj, 3, 3)
+        R_WB = np.empty((N, nb, 3, 3))
+        p_WB = np.empty((N, nb, 3))
+        S = np.zeros((N, nj, 6))
+        for k, nd in enumerate(nodes):
+            R_PF, p_PF, R_MB, p_MB, R_FMw, p_FMw = consts[k]
+            if nd.parent < 0:
+                R_WP, p_WP = wc["roots"][k]
+                R_WF = R_WP @ R_PF
+                p_WF = np.broadcast_to(p_WP + R_WP @ p_PF, (N, 3))
+                R_WF = np.broadcast_to(R_WF, (N, 3, 3))
+            else:
+                R_WP, p_WP = R_WB[:, nd.parent], p_WB[:, nd.parent]
+                R_WF = R_WP @ R_PF
+                p_WF = p_WP + R_WP @ p_PF
+            if nd.kind == "weld":
+                R_WM = R_WF @ R_FMw
+                p_WM = p_WF + R_WF @ p_FMw
+            else:
+                i = jpos[k]
+                a_W = R_WF @ nd.axis
+                if nd.kind == "revolute":
+                    R_WM = R_WF @ R_FM_all[:, i]
+                    p_WM = p_WF
+                    S[:, i, :3] = a_W
+                    S[:, i, 3:] = _cross(p_WF, a_W)
+                else:
+                    R_WM = R_WF
+                    p_WM = p_WF + q[:, nd.qi, None] * a_W
+                    S[:, i, 3:] = a_W
+            R_WB[:, k] = R_WM @ R_MB
+            p_WB[:, k] = p_WM + R_WM @ p_MB
+        sup = wc["support"]  # (nb, nj)
+        qd = v[:, wc["vi"]]
+        qdd = vd[:, wc["vi"]]
+        Sqd = S * qd[..., None]  # (N, nj, 6)
+        V = sup @ Sqd  # (N, nb, 6) spatial velocities, world-origin coordinates
+        # velocity of the body each joint moves (its child node), for the S-derivative term
+        child = np.array(joints, dtype=int)
+        c_j = S * qdd[..., None] + _crm_times(V[:, child], Sqd)
+        A = sup @ c_j
+        g = np.asarray(self.plant.gravity_field().gravity_vector(), dtype=float)
+        A[:, :, 3:] -= g
+        # to body coordinates: w_B = R^T w, v_B = R^T (v_O + w x p)
+        RT = np.swapaxes(R_WB, -1, -2)
+        def to_body(X):
+            w, vo = X[..., :3], X[..., 3:]
+            return np.concatenate([(RT @ w[..., None])[..., 0], (RT @ (vo + _cross(w, p_WB))[..., None])[..., 0]], axis=-1)
+        vB = to_body(V).reshape(N * nb, 6)
+        aB = to_body(A).reshape(N * nb, 6)
+        Kb = _body_force_regressor(vB, aB).reshape(N, nb, 6, 10)
+        # forces to world coordinates: f_W = R f_B, n_O = R n_B + p x (R f_B)
+        Rf = R_WB @ Kb[:, :, 3:, :]  # (N, nb, 3, 10)
+        Rn = R_WB @ Kb[:, :, :3, :] + _skew(p_WB) @ Rf
+        # tau_j = a_j . n_O + (p_j x a_j) . f over the supported bodies
+        G = np.concatenate([Rn, Rf], axis=2)  # (N, nb, 6, 10)
+        T = S[:, None, :, :] @ G  # (N, nb, nj, 10)
+        T = T * sup[None, :, :, None]
+        Y = np.zeros((N, self.n, self.p_standard))
+        Y[:, wc["vi"], :10 * nb] = np.swapaxes(T, 1, 2).reshape(N, nj, 10 * nb)
+        self._add_extras(Y, v, vd)
+        return Y
+
     def _add_extras(self, Y, v, vd):
         base = 10 * len(self._nodes)
         for c, (_, kind, vi) in enumerate(self._extras):
