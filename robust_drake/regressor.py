@@ -186,6 +186,9 @@ def drake_inverse_dynamics(plant, context, q, v, vdot) -> np.ndarray:
 # ----------------------------------------------------------------------------- spatial helpers
 
 
+_EYE3 = np.eye(3)
+
+
 def _skew(w):
     """(..., 3) -> (..., 3, 3) cross-product matrices."""
     S = np.zeros(w.shape[:-1] + (3, 3))
@@ -408,6 +411,17 @@ class InverseDynamicsRegressor:
 
     # ------------------------------------------------------------------ standard regressor (numeric)
     def _standard_numeric(self, q, v, vd):
+        """Standard regressor (N, n, p_standard) of the numeric route: the batched world-frame
+        evaluation for few samples (the per-tick path: ~3x fewer numpy calls), the recursion for
+        many (its small-matrix products scale better with N; crossover measured between 3 and 3000
+        samples on serial7, see BUILD_NOTES)."""
+        if q.shape[0] <= 64:
+            return self._standard_world(q, v, vd)
+        return self._standard_numeric_recursive(q, v, vd)
+
+    def _standard_numeric_recursive(self, q, v, vd):
+        """Recursive Newton-Euler regressor in body coordinates (Featherstone), the reference
+        the batched :meth:`_standard_world` is tested against."""
         N = q.shape[0]
         nodes = self._nodes
         g = self.plant.gravity_field().gravity_vector()
@@ -482,112 +496,139 @@ class InverseDynamicsRegressor:
 
     # ------------------------------------------------------------------ standard regressor (world frame)
     def _world_constants(self):
-        """Constants of :meth:`_standard_world`: joint list, parent pose of root nodes, and the
-        support mask (joint j supports node k when j's child body is k or an ancestor of k)."""
+        """Constants of :meth:`_standard_world`.
+
+        Per node, the pose of the body in its parent, X_PB(q) = X_PF X_FM(q) X_MB, is written
+        as constants times (1, sin q, 1 - cos q) for revolute joints (Rodrigues:
+        R_FM = I + s K + (1 - c) K^2), (1, q) for prismatic ones, constant for welds; for nodes
+        whose parent is welded to the world the parent's world pose is folded in, so their
+        parent is the world (index nb).  ``support[k, i]`` = 1 when joint i's child body is
+        node k or one of its ancestors."""
         c = getattr(self, "_wconsts", None)
         if c is not None:
             return c
         nodes = self._nodes
+        nb = len(nodes)
         ctx0 = self.plant.CreateDefaultContext()
-        roots = {}
+        consts = self._node_constants()
+        R0 = np.zeros((nb, 3, 3))
+        R1 = np.zeros((nb, 3, 3))
+        R2 = np.zeros((nb, 3, 3))
+        p0 = np.zeros((nb, 3))
+        p1 = np.zeros((nb, 3))
+        p2 = np.zeros((nb, 3))
+        a_P = np.zeros((nb, 3))  # joint axis in the parent (world for roots)
+        pF_P = np.zeros((nb, 3))  # joint frame origin in the parent (world for roots)
+        parent = np.zeros(nb, dtype=int)
         for k, nd in enumerate(nodes):
+            R_PF, p_PF, R_MB, p_MB, R_FMw, p_FMw = consts[k]
             if nd.parent < 0:
                 X = self.plant.EvalBodyPoseInWorld(ctx0, nd.joint.parent_body())
-                roots[k] = (X.rotation().matrix().copy(), X.translation().copy())
+                R_WP, p_WP = X.rotation().matrix(), X.translation()
+                R_PF, p_PF = R_WP @ R_PF, p_WP + R_WP @ p_PF
+                parent[k] = nb
+            else:
+                parent[k] = nd.parent
+            if nd.kind == "weld":
+                R0[k] = R_PF @ R_FMw @ R_MB
+                p0[k] = p_PF + R_PF @ (p_FMw + R_FMw @ p_MB)
+            elif nd.kind == "revolute":
+                Kx = _skew(nd.axis)
+                R0[k], R1[k], R2[k] = R_PF @ R_MB, R_PF @ Kx @ R_MB, R_PF @ Kx @ Kx @ R_MB
+                p0[k], p1[k], p2[k] = p_PF + R_PF @ p_MB, R_PF @ Kx @ p_MB, R_PF @ Kx @ Kx @ p_MB
+            else:
+                R0[k] = R_PF @ R_MB
+                p0[k], p1[k] = p_PF + R_PF @ p_MB, R_PF @ nd.axis
+            a_P[k] = R_PF @ nd.axis if nd.kind != "weld" else 0.0
+            pF_P[k] = p_PF
         joints = [k for k, nd in enumerate(nodes) if nd.kind != "weld"]
         jpos = {k: i for i, k in enumerate(joints)}
-        nb, nj = len(nodes), len(joints)
-        support = np.zeros((nb, nj))  # support[k, i] = 1 if joint i is on the path of node k
+        nj = len(joints)
+        support = np.zeros((nb, nj))
         for k in range(nb):
             a = k
             while a >= 0:
                 if a in jpos:
                     support[k, jpos[a]] = 1.0
                 a = nodes[a].parent
-        rev = np.array([nodes[k].kind == "revolute" for k in joints])
-        axes = np.array([nodes[k].axis for k in joints]).reshape(nj, 3)
-        c = {"roots": roots, "joints": joints, "jpos": jpos, "support": support, "revolute": rev, "axes": axes,
-             "qi": np.array([nodes[k].qi for k in joints], dtype=int),
-             "vi": np.array([nodes[k].vi for k in joints], dtype=int)}
+        J = np.array(joints, dtype=int)
+        rev = np.array([nodes[k].kind == "revolute" for k in joints], dtype=bool)
+        c = {"R0": R0, "R1": R1[J[rev]], "R2": R2[J[rev]], "p0": p0, "p1r": p1[J[rev]], "p2r": p2[J[rev]],
+             "p1p": p1[J[~rev]], "rev_nodes": J[rev], "pri_nodes": J[~rev],
+             "rev_q": np.array([nodes[k].qi for k in J[rev]], dtype=int),
+             "pri_q": np.array([nodes[k].qi for k in J[~rev]], dtype=int),
+             "parent": parent, "joints": J, "joint_parent": parent[J], "a_P": a_P[J], "pF_P": pF_P[J],
+             "revolute": rev, "support": support, "vi": np.array([nodes[k].vi for k in joints], dtype=int),
+             "topo": [(k, int(parent[k])) for k in range(nb)],
+             "g": np.asarray(self.plant.gravity_field().gravity_vector(), dtype=float).copy()}
         self._wconsts = c
         return c
 
     def _standard_world(self, q, v, vd):
         """The standard regressor (N, n, p_standard) with every body's motion in world (Plucker,
-        world-origin) coordinates, batched over bodies: forward kinematics is the only loop over
-        the tree, then V = sum of S_j qd_j over supporting joints, A = -g + sum(S_j qdd_j +
-        V_j x S_j qd_j), the body regressors K(v_B, a_B) of all bodies in one call, forces to world
-        coordinates, and tau_j = S_j^T (sum over supported bodies).  Same result as the recursive
-        Newton-Euler of :meth:`_standard_numeric_recursive` (tested), with ~4x fewer numpy calls."""
+        world-origin) coordinates, batched over bodies: the parent-to-body poses of all joints in
+        one Rodrigues expression, forward kinematics as the only loop over the tree (two small
+        products per body), then V = sum of S_j qd_j over supporting joints, A = -g + sum(S_j
+        qdd_j + V_j x S_j qd_j), the body regressors K(v_B, a_B) of all bodies in one call,
+        forces to world coordinates and tau_j = S_j^T (sum over supported bodies).  Same result
+        as the recursive Newton-Euler of :meth:`_standard_numeric_recursive` (tested)."""
         N = q.shape[0]
-        nodes = self._nodes
-        nb = len(nodes)
+        nb = len(self._nodes)
         wc = self._world_constants()
-        consts = self._node_constants()
-        joints, jpos = wc["joints"], wc["jpos"]
-        nj = len(joints)
-        # joint rotations of all revolute joints at once (Rodrigues)
-        ang = q[:, wc["qi"]]  # (N, nj)
-        Kx = _skew(wc["axes"])  # (nj, 3, 3)
-        c, s = np.cos(ang)[..., None, None], np.sin(ang)[..., None, None]
-        R_FM_all = np.eye(3) + s * Kx + (1 - c) * (Kx @ Kx)  # (N, nj, 3, 3)
-        R_WB = np.empty((N, nb, 3, 3))
-        p_WB = np.empty((N, nb, 3))
+        # parent-to-body poses of every node, (N, nb, 3, 3) and (N, nb, 3)
+        R_PB = np.repeat(wc["R0"][None], N, axis=0)
+        p_PB = np.repeat(wc["p0"][None], N, axis=0)
+        rn = wc["rev_nodes"]
+        if rn.size:
+            ang = q[:, wc["rev_q"]]
+            s, c1 = np.sin(ang), 1.0 - np.cos(ang)
+            R_PB[:, rn] += s[..., None, None] * wc["R1"] + c1[..., None, None] * wc["R2"]
+            p_PB[:, rn] += s[..., None] * wc["p1r"] + c1[..., None] * wc["p2r"]
+        pn = wc["pri_nodes"]
+        if pn.size:
+            p_PB[:, pn] += q[:, wc["pri_q"], None] * wc["p1p"]
+        # world poses; slot nb is the world itself
+        R_W = np.empty((N, nb + 1, 3, 3))
+        p_W = np.empty((N, nb + 1, 3))
+        R_W[:, nb] = _EYE3
+        p_W[:, nb] = 0.0
+        for k, par in wc["topo"]:
+            Rp = R_W[:, par]
+            R_W[:, k] = Rp @ R_PB[:, k]
+            p_W[:, k] = p_W[:, par] + (Rp @ p_PB[:, k, :, None])[..., 0]
+        R_WB, p_WB = R_W[:, :nb], p_W[:, :nb]
+        # joint motion subspaces in world-origin Plucker coordinates
+        jp = wc["joint_parent"]
+        Rj = R_W[:, jp]
+        a_W = (Rj @ wc["a_P"][..., None])[..., 0]
+        pF = p_W[:, jp] + (Rj @ wc["pF_P"][..., None])[..., 0]
+        nj = jp.size
         S = np.zeros((N, nj, 6))
-        for k, nd in enumerate(nodes):
-            R_PF, p_PF, R_MB, p_MB, R_FMw, p_FMw = consts[k]
-            if nd.parent < 0:
-                R_WP, p_WP = wc["roots"][k]
-                R_WF = R_WP @ R_PF
-                p_WF = np.broadcast_to(p_WP + R_WP @ p_PF, (N, 3))
-                R_WF = np.broadcast_to(R_WF, (N, 3, 3))
-            else:
-                R_WP, p_WP = R_WB[:, nd.parent], p_WB[:, nd.parent]
-                R_WF = R_WP @ R_PF
-                p_WF = p_WP + R_WP @ p_PF
-            if nd.kind == "weld":
-                R_WM = R_WF @ R_FMw
-                p_WM = p_WF + R_WF @ p_FMw
-            else:
-                i = jpos[k]
-                a_W = R_WF @ nd.axis
-                if nd.kind == "revolute":
-                    R_WM = R_WF @ R_FM_all[:, i]
-                    p_WM = p_WF
-                    S[:, i, :3] = a_W
-                    S[:, i, 3:] = _cross(p_WF, a_W)
-                else:
-                    R_WM = R_WF
-                    p_WM = p_WF + q[:, nd.qi, None] * a_W
-                    S[:, i, 3:] = a_W
-            R_WB[:, k] = R_WM @ R_MB
-            p_WB[:, k] = p_WM + R_WM @ p_MB
+        rev = wc["revolute"]
+        S[:, rev, :3] = a_W[:, rev]
+        S[:, rev, 3:] = _cross(pF[:, rev], a_W[:, rev])
+        S[:, ~rev, 3:] = a_W[:, ~rev]
         sup = wc["support"]  # (nb, nj)
         qd = v[:, wc["vi"]]
         qdd = vd[:, wc["vi"]]
-        Sqd = S * qd[..., None]  # (N, nj, 6)
-        V = sup @ Sqd  # (N, nb, 6) spatial velocities, world-origin coordinates
-        # velocity of the body each joint moves (its child node), for the S-derivative term
-        child = np.array(joints, dtype=int)
-        c_j = S * qdd[..., None] + _crm_times(V[:, child], Sqd)
+        Sqd = S * qd[..., None]
+        V = sup @ Sqd  # (N, nb, 6)
+        c_j = S * qdd[..., None] + _crm_times(V[:, wc["joints"]], Sqd)
         A = sup @ c_j
-        g = np.asarray(self.plant.gravity_field().gravity_vector(), dtype=float)
-        A[:, :, 3:] -= g
+        A[:, :, 3:] -= wc["g"]
         # to body coordinates: w_B = R^T w, v_B = R^T (v_O + w x p)
         RT = np.swapaxes(R_WB, -1, -2)
-        def to_body(X):
-            w, vo = X[..., :3], X[..., 3:]
-            return np.concatenate([(RT @ w[..., None])[..., 0], (RT @ (vo + _cross(w, p_WB))[..., None])[..., 0]], axis=-1)
-        vB = to_body(V).reshape(N * nb, 6)
-        aB = to_body(A).reshape(N * nb, 6)
-        Kb = _body_force_regressor(vB, aB).reshape(N, nb, 6, 10)
+        VA = np.concatenate([V, A], axis=1)  # (N, 2 nb, 6)
+        RT2 = np.concatenate([RT, RT], axis=1)
+        p2 = np.concatenate([p_WB, p_WB], axis=1)
+        w, vo = VA[..., :3], VA[..., 3:]
+        B = np.concatenate([(RT2 @ w[..., None])[..., 0], (RT2 @ (vo + _cross(w, p2))[..., None])[..., 0]], axis=-1)
+        Kb = _body_force_regressor(B[:, :nb].reshape(N * nb, 6), B[:, nb:].reshape(N * nb, 6)).reshape(N, nb, 6, 10)
         # forces to world coordinates: f_W = R f_B, n_O = R n_B + p x (R f_B)
-        Rf = R_WB @ Kb[:, :, 3:, :]  # (N, nb, 3, 10)
+        Rf = R_WB @ Kb[:, :, 3:, :]
         Rn = R_WB @ Kb[:, :, :3, :] + _skew(p_WB) @ Rf
-        # tau_j = a_j . n_O + (p_j x a_j) . f over the supported bodies
         G = np.concatenate([Rn, Rf], axis=2)  # (N, nb, 6, 10)
-        T = S[:, None, :, :] @ G  # (N, nb, nj, 10)
-        T = T * sup[None, :, :, None]
+        T = (S[:, None, :, :] @ G) * sup[None, :, :, None]  # (N, nb, nj, 10)
         Y = np.zeros((N, self.n, self.p_standard))
         Y[:, wc["vi"], :10 * nb] = np.swapaxes(T, 1, 2).reshape(N, nj, 10 * nb)
         self._add_extras(Y, v, vd)
