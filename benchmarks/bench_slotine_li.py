@@ -35,8 +35,9 @@ def main():
     q, qd, v, a = (x.tolist() for x in rng.normal(size=(4, 2)))
     print(f"{'d2r2':18s} {'closed form JS eq. 15':28s} {2:2d} {3:6d} "
           f"{per_call_us(lambda: d2r2_regressor_single(q, qd, v, a), calls=3000):10.1f} {'':>28s}")
-    for robot in ("d2r2", "siciliano_2link", "serial7"):
-        reg = InverseDynamicsRegressor.from_robot(robot)
+    for robot, method in (("d2r2", "symbolic"), ("d2r2", "numeric"), ("siciliano_2link", "symbolic"),
+                          ("siciliano_2link", "numeric"), ("serial7", "numeric")):
+        reg = InverseDynamicsRegressor.from_robot(robot, method=method)
         n = reg.n
         q, qd, v, a = rng.normal(size=(4, n))
         single = per_call_us(lambda: reg.slotine_li_single(q, qd, v, a))

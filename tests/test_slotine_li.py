@@ -265,3 +265,36 @@ def test_simulate_json_reports_uncertainty_and_rho(capsys):
     assert cli_main(["simulate", "--controller", "pd", "--duration", "0.02", "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["uncertainty"] is None and out["rho"] is None
+
+
+def _heavier(plant, ctx, factor=1.15):
+    """Every link 15 % heavier (centre of mass and unit inertia kept, so inertias scale too)."""
+    for k in range(1, 8):
+        if plant.HasBodyNamed(f"link{k}"):
+            b = plant.GetBodyByName(f"link{k}")
+            b.SetMass(ctx, factor * b.default_mass())
+
+
+@pytest.mark.parametrize("robot", ["siciliano_2link", "serial7"])
+def test_sp1_is_robust_to_a_plant_inside_its_uncertainty_box(robot):
+    """The true arm (links 15 % heavier) lies in the stated box (checked from Drake's parameters);
+    SP1 with theta0 = the URDF keeps tracking bounded and beats both the nominal law (rho = 0,
+    same K, Lambda, theta0) and PD."""
+    from robust_drake.diagram import ClosedLoopConfig, simulate
+
+    reg = InverseDynamicsRegressor.from_robot(robot)
+    plant = make_plant(robot)
+    ctx = plant.CreateDefaultContext()
+    _heavier(plant, ctx)
+    th0, th = reg.base_parameters(), reg.base_parameters(plant, ctx)
+    assert np.linalg.norm(th - th0) > 0.05 * np.linalg.norm(th0)  # a real mismatch ...
+    assert np.all(np.abs(th - th0) <= 0.2 * np.abs(th0) + 1e-12)  # ... inside the default box
+    runs = {}
+    for name, ctrl, params in (("pd", "pd", {}), ("nominal", "sp1", {"rho": 0.0}), ("sp1", "sp1", {})):
+        res = simulate(ClosedLoopConfig(robot=robot, controller=ctrl, controller_params=params, trajectory="sine",
+                                        rate=1000.0, duration=1.0, plant_setup=[_heavier]))
+        assert not res.diverged
+        e = np.abs(res.q - res.q_d)
+        runs[name] = (np.sqrt((e ** 2).mean()), e[res.t > 0.5].max())
+    assert runs["sp1"][1] < 5e-3 and runs["sp1"][1] < 0.2 * runs["pd"][1], runs
+    assert runs["sp1"][0] < 0.9 * runs["nominal"][0] and runs["sp1"][0] < 0.5 * runs["pd"][0], runs
