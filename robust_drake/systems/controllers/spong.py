@@ -14,10 +14,19 @@ with the same K and Lambda (what SP1/SP2 must beat).
 D2R2 numbers (appendix 12.1): theta_0 = table 11, rho = 0.1062 (SP1; the Euclidean norm of
 theta_0 - theta_unloaded; eq. 17 prints the sum without squares), rho_i = table 10 (SP2),
 K = diag(30, 10), Lambda = diag(50, 20) (section 8), epsilon from table 1 (SP1: 1, SP2: 0.5).
+
+Any other URDF arm (serial7, siciliano_2link, ...): Y is the Drake-derived Slotine-Li regressor
+(:meth:`robust_drake.regressor.InverseDynamicsRegressor.slotine_li`, gravity included), theta_0 the
+URDF's base parameters, the uncertainty set a box |theta_i - theta0_i| <= rel_bound |theta0_i| +
+abs_bound (:func:`box_uncertainty`; SP1's rho = ||b||_2, SP2's rho_i = b_i), gains from
+:func:`default_gains` and boundary layers from :func:`default_epsilon`.  Which robots have a
+closed form is the interim registry :data:`CLOSED_FORM_SLOTINE_LI` (keyed by robot name).
+The controller systems are thin wrappers: ``compute`` is :func:`spong_law`.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import Callable
@@ -245,11 +254,16 @@ def default_gains(ctx):
     if cf is not None:
         d = cf()
         return d.K, d.Lambda
+    return _mass_matrix_gains(str(ctx.robot), ctx.load), (DEFAULT_LAMBDA,) * ctx.n
+
+
+@functools.lru_cache(maxsize=32)
+def _mass_matrix_gains(robot, load):
     from robust_drake.models import make_plant, resolve_urdf
 
-    plant = make_plant(str(resolve_urdf(ctx.robot, ctx.load)))
+    plant = make_plant(str(resolve_urdf(robot, load)))
     M0 = plant.CalcMassMatrix(plant.CreateDefaultContext())
-    return tuple(DEFAULT_K_BANDWIDTH * np.diag(M0)), (DEFAULT_LAMBDA,) * ctx.n
+    return tuple(DEFAULT_K_BANDWIDTH * np.diag(M0))
 
 
 def box_uncertainty(theta0, names, rel_bound=DEFAULT_REL_BOUND, abs_bound=0.0) -> dict:
