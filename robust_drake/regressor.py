@@ -689,6 +689,7 @@ class InverseDynamicsRegressor:
         self._sym_time = time.perf_counter() - t0
         self._W_expr, self._sym_qva = np.asarray(W), (list(qv), list(vv), list(av))
         self._W_fun = _compile_matrix(self._W_expr, {"q": list(qv), "v": list(vv), "vd": list(av)})
+        self._W_scalar = _compile_matrix(self._W_expr, {"q": list(qv), "v": list(vv), "vd": list(av)}, scalar=True)
         self._alpha = np.asarray(alpha).ravel()
         self._params_vars = params
         self._A = self._alpha_linear_map()
@@ -844,10 +845,29 @@ class InverseDynamicsRegressor:
         """One sample of :meth:`slotine_li`, (n, p_base), for the per-tick controller path:
         inputs are length-n sequences and are not checked (use :meth:`slotine_li` elsewhere)."""
         n = self.n
+        if self.method == "symbolic":
+            return self._slotine_li_single_symbolic(q, qd, v, a)
         f = np.asarray
         Y = self._slotine_li_std(f(q, float).reshape(1, n), f(qd, float).reshape(1, n),
                                  f(v, float).reshape(1, n), f(a, float).reshape(1, n))
         return Y[0][:, self.base_index]
+
+    def _slotine_li_single_symbolic(self, q, qd, v, a):
+        """Symbolic route, one sample: the compiled lumped regressor in scalar math at the three
+        polarisation states, combined in the lumped space (linear), then mapped by alpha = A pi."""
+        n = self.n
+        q, qd, v, a = (list(map(float, x)) for x in (q, qd, v, a))
+        z = [0.0] * n
+        f = self._W_scalar
+        W0 = np.array(f(q, z, a))
+        Wp = np.array(f(q, [x + y for x, y in zip(qd, v)], z))
+        Wm = np.array(f(q, [x - y for x, y in zip(qd, v)], z))
+        Y = np.zeros((n, self.p_standard))
+        Y[:, :10 * len(self._nodes)] = (W0 + 0.25 * (Wp - Wm)) @ self._A
+        base = 10 * len(self._nodes)
+        for c, (_, kind, vi) in enumerate(self._extras):
+            Y[vi, base + c] = a[vi] if kind == "Ia" else qd[vi]
+        return Y[:, self.base_index]
 
     def _inputs4(self, q, qd, v, a):
         arrs = [np.asarray(x, dtype=float) for x in (q, qd, v, a)]
@@ -964,16 +984,17 @@ def clear_cache() -> None:
 # ----------------------------------------------------------------------------- expression compiler
 
 
-def _compile_matrix(W, groups):
+def _compile_matrix(W, groups, scalar: bool = False):
     """Compile a matrix of pydrake Expressions in the variables ``groups`` ({"q": [Variable...],
     ...}) into ``f(q, v, vd) -> (N, rows, cols)``, one vectorised numpy function (common
-    subexpressions shared)."""
+    subexpressions shared).  ``scalar=True``: ``f(q, v, vd) -> rows x cols nested lists`` for one
+    sample (sequences of floats), in ``math`` functions (no numpy call per operation)."""
     from pydrake.symbolic import ExpressionKind
 
     var_code = {}
     for g, vs in groups.items():
         for i, x in enumerate(vs):
-            var_code[x.get_id()] = f"{g}[:, {i}]"
+            var_code[x.get_id()] = f"{g}[{i}]" if scalar else f"{g}[:, {i}]"
     lines, memo = [], {}
     unary = {
         ExpressionKind.Sin: "np.sin", ExpressionKind.Cos: "np.cos", ExpressionKind.Tan: "np.tan",
@@ -1006,11 +1027,11 @@ def _compile_matrix(W, groups):
         elif kind in unary:
             code = f"{unary[kind]}({sub[0]})"
         elif kind == ExpressionKind.Atan2:
-            code = f"np.arctan2({sub[0]}, {sub[1]})"
+            code = f"{'math.atan2' if scalar else 'np.arctan2'}({sub[0]}, {sub[1]})"
         elif kind == ExpressionKind.Min:
-            code = f"np.minimum({sub[0]}, {sub[1]})"
+            code = f"{'min' if scalar else 'np.minimum'}({sub[0]}, {sub[1]})"
         elif kind == ExpressionKind.Max:
-            code = f"np.maximum({sub[0]}, {sub[1]})"
+            code = f"{'max' if scalar else 'np.maximum'}({sub[0]}, {sub[1]})"
         else:
             raise RobustDrakeError(f"cannot compile expression kind {kind}")
         name = f"t{len(memo)}"
@@ -1018,17 +1039,22 @@ def _compile_matrix(W, groups):
         memo[key] = name
         return name
 
+    if scalar:
+        unary = {k: ("abs" if f == "np.abs" else f.replace("np.arc", "math.a").replace("np.", "math."))
+                 for k, f in unary.items()}
     rows, cols = W.shape
-    body = ["def _f(q, v, vd):", "    N = q.shape[0]"]
+    body = ["def _f(q, v, vd):"] if scalar else ["def _f(q, v, vd):", "    N = q.shape[0]"]
     assigns = []
     for i in range(rows):
         for j in range(cols):
             e = W[i, j]
             if e.get_kind() == ExpressionKind.Constant and e.Evaluate() == 0.0:
                 continue
-            assigns.append(f"    out[:, {i}, {j}] = {emit(e)}")
-    src = "\n".join(body + lines + [f"    out = np.zeros((N, {rows}, {cols}))"] + assigns + ["    return out"])
-    ns = {"np": np}
+            assigns.append((f"    out[{i}][{j}] = " if scalar else f"    out[:, {i}, {j}] = ") + emit(e))
+    alloc = (f"    out = [[0.0] * {cols} for _ in range({rows})]" if scalar
+             else f"    out = np.zeros((N, {rows}, {cols}))")
+    src = "\n".join(body + lines + [alloc] + assigns + ["    return out"])
+    ns = {"np": np, "math": math}
     exec(compile(src, "<regressor>", "exec"), ns)
     f = ns["_f"]
     f.source = src

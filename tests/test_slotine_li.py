@@ -154,6 +154,8 @@ def test_symbolic_and_numeric_routes_agree_and_damping_acts_on_qd(tmp_path):
             ref = M @ a[k] + _christoffel_C(dM, qd[k]) @ v[k] - plant.CalcGravityGeneralizedForces(ctx)
             ref[1] += 0.7 * qd[k, 1]
             assert np.abs(Ys[method][k] @ theta - ref).max() <= 1e-9 * np.abs(ref).max()
+            np.testing.assert_allclose(reg.slotine_li_single(q[k], qd[k], v[k], a[k]), Ys[method][k],
+                                       rtol=0, atol=1e-12 * np.abs(Ys[method][k]).max())
     np.testing.assert_allclose(Ys["numeric"], Ys["symbolic"], rtol=1e-9, atol=1e-9)
 
 
