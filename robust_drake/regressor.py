@@ -30,7 +30,15 @@ Two routes give the same base parameterisation:
   (gravity), ``DecomposeLumpedParameters``, and the lumped regressor compiled to one vectorised
   numpy function.  Only sensible for short chains (pitfalls notes: ~20x slower per link).
 
-``method="auto"`` uses symbolic for n <= 2 and numeric otherwise.
+``method="auto"`` uses symbolic for n <= 2 and numeric otherwise.  The numeric route evaluates
+few samples (<= 64, e.g. one controller tick) with a batched world-frame algorithm
+(``_standard_world``) and many with the body-frame recursion (``_standard_numeric_recursive``);
+both give the same matrix (tested).
+
+Slotine-Li regressor (:meth:`InverseDynamicsRegressor.slotine_li`, per tick
+:meth:`~InverseDynamicsRegressor.slotine_li_single`): ``Y(q, qd, v, a) theta_base = M(q) a +
+C(q, qd) v + g(q)`` with the same theta_base, by polarisation of the velocity products
+(C(q, qd) v = 1/4 [h(q, qd + v) - h(q, qd - v)], h(q, w) = C(q, w) w): JS eq. 15 for any arm.
 """
 
 from __future__ import annotations
