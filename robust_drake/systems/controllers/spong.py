@@ -306,7 +306,7 @@ def default_epsilon(rho, K, y_max):
     kmin = float(np.min(K))
     r = np.asarray(rho, dtype=float)
     if not np.isfinite(y_max) or y_max <= 0:
-        return np.where(r > 0, 1.0, 1.0) if r.ndim else 1.0
+        return np.ones_like(r) if r.ndim else 1.0
     e = r * y_max ** 2 / kmin
     if r.ndim == 0:
         return float(e) if e > 0 else 1.0
