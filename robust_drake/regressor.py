@@ -30,7 +30,15 @@ Two routes give the same base parameterisation:
   (gravity), ``DecomposeLumpedParameters``, and the lumped regressor compiled to one vectorised
   numpy function.  Only sensible for short chains (pitfalls notes: ~20x slower per link).
 
-``method="auto"`` uses symbolic for n <= 2 and numeric otherwise.
+``method="auto"`` uses symbolic for n <= 2 and numeric otherwise.  The numeric route evaluates
+few samples (<= 64, e.g. one controller tick) with a batched world-frame algorithm
+(``_standard_world``) and many with the body-frame recursion (``_standard_numeric_recursive``);
+both give the same matrix (tested).
+
+Slotine-Li regressor (:meth:`InverseDynamicsRegressor.slotine_li`, per tick
+:meth:`~InverseDynamicsRegressor.slotine_li_single`): ``Y(q, qd, v, a) theta_base = M(q) a +
+C(q, qd) v + g(q)`` with the same theta_base, by polarisation of the velocity products
+(C(q, qd) v = 1/4 [h(q, qd + v) - h(q, qd - v)], h(q, w) = C(q, w) w): JS eq. 15 for any arm.
 """
 
 from __future__ import annotations
@@ -186,6 +194,9 @@ def drake_inverse_dynamics(plant, context, q, v, vdot) -> np.ndarray:
 # ----------------------------------------------------------------------------- spatial helpers
 
 
+_EYE3 = np.eye(3)
+
+
 def _skew(w):
     """(..., 3) -> (..., 3, 3) cross-product matrices."""
     S = np.zeros(w.shape[:-1] + (3, 3))
@@ -213,11 +224,18 @@ def _motion_transform(R_PB, p_PB):
     return X
 
 
+def _cross(a, b):
+    """a x b for (..., 3) arrays (np.cross costs ~25 us per call on small arrays, this ~5 us)."""
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
+
+
 def _crm_times(vel, m):
     """crm(vel) m for spatial motion vectors (..., 6)."""
     w, vl = vel[..., :3], vel[..., 3:]
     mw, mv = m[..., :3], m[..., 3:]
-    return np.concatenate([np.cross(w, mw), np.cross(w, mv) + np.cross(vl, mw)], axis=-1)
+    return np.concatenate([_cross(w, mw), _cross(w, mv) + _cross(vl, mw)], axis=-1)
 
 
 def _body_force_regressor(vel, acc):
@@ -238,7 +256,7 @@ def _body_force_regressor(vel, acc):
     K = np.zeros((N, 6, 10))
     K[:, :3, 4:] = L(al) + Sw @ L(w)
     K[:, :3, 1:4] = -Sa - Sw @ Sv + Sv @ Sw
-    K[:, 3:, 0] = av + np.cross(w, vl)
+    K[:, 3:, 0] = av + _cross(w, vl)
     K[:, 3:, 1:4] = Sal + Sw @ Sw
     return K
 
@@ -401,20 +419,28 @@ class InverseDynamicsRegressor:
 
     # ------------------------------------------------------------------ standard regressor (numeric)
     def _standard_numeric(self, q, v, vd):
+        """Standard regressor (N, n, p_standard) of the numeric route: the batched world-frame
+        evaluation for few samples (the per-tick path: ~3x fewer numpy calls), the recursion for
+        many (its small-matrix products scale better with N; crossover measured between 3 and 3000
+        samples on serial7, see BUILD_NOTES)."""
+        if q.shape[0] <= 64:
+            return self._standard_world(q, v, vd)
+        return self._standard_numeric_recursive(q, v, vd)
+
+    def _standard_numeric_recursive(self, q, v, vd):
+        """Recursive Newton-Euler regressor in body coordinates (Featherstone), the reference
+        the batched :meth:`_standard_world` is tested against."""
         N = q.shape[0]
         nodes = self._nodes
         g = self.plant.gravity_field().gravity_vector()
         g = np.asarray(g, dtype=float)
         vel, acc, X = [None] * len(nodes), [None] * len(nodes), [None] * len(nodes)
-        zero = np.zeros((N, 6))
+        consts = self._node_constants()
         for k, nd in enumerate(nodes):
-            R_PF, p_PF = nd.X_PF.rotation().matrix(), nd.X_PF.translation()
-            R_BM, p_BM = nd.X_BM.rotation().matrix(), nd.X_BM.translation()
-            R_MB = R_BM.T
-            p_MB = -R_MB @ p_BM
+            R_PF, p_PF, R_MB, p_MB, R_FMw, p_FMw = consts[k]
             if nd.kind == "weld":
-                R_FM = np.broadcast_to(nd.X_FM.rotation().matrix(), (N, 3, 3))
-                p_FM = np.broadcast_to(nd.X_FM.translation(), (N, 3))
+                R_FM = np.broadcast_to(R_FMw, (N, 3, 3))
+                p_FM = np.broadcast_to(p_FMw, (N, 3))
             elif nd.kind == "revolute":
                 R_FM = _rot_axis(nd.axis, q[:, nd.qi])
                 p_FM = np.zeros((N, 3))
@@ -422,19 +448,19 @@ class InverseDynamicsRegressor:
                 R_FM = np.broadcast_to(np.eye(3), (N, 3, 3))
                 p_FM = q[:, nd.qi, None] * nd.axis
             R_PM = R_PF @ R_FM
-            p_PM = p_PF + np.einsum("ij,nj->ni", R_PF, p_FM)
+            p_PM = p_PF + p_FM @ R_PF.T
             R_PB = R_PM @ R_MB
-            p_PB = p_PM + np.einsum("nij,j->ni", R_PM, p_MB)
+            p_PB = p_PM + R_PM @ p_MB
             Xk = _motion_transform(R_PB, p_PB)
             X[k] = Xk
-            vP = zero if nd.parent < 0 else vel[nd.parent]
-            if nd.parent < 0:  # parent fixed to the world: a = -gravity, in the parent's frame
-                aP = np.zeros((N, 6))
-                aP[:, 3:] = -(nd.R_WP.T @ g)
+            if nd.parent < 0:  # parent fixed to the world: v = 0, a = -gravity, in the parent's frame
+                aP = np.zeros((N, 6, 1))
+                aP[:, 3:, 0] = -(nd.R_WP.T @ g)
+                vk = np.zeros((N, 6))
             else:
-                aP = acc[nd.parent]
-            vk = np.einsum("nij,nj->ni", Xk, vP)
-            ak = np.einsum("nij,nj->ni", Xk, aP)
+                aP = acc[nd.parent][:, :, None]
+                vk = (Xk @ vel[nd.parent][:, :, None])[:, :, 0]
+            ak = (Xk @ aP)[:, :, 0]
             if nd.kind != "weld":
                 qd, qdd = v[:, nd.vi], vd[:, nd.vi]
                 vJ = qd[:, None] * nd.S
@@ -457,6 +483,162 @@ class InverseDynamicsRegressor:
             if nd.parent >= 0:
                 off = 10 * (k - nd.parent)
                 F[nd.parent][:, :, off:] += np.matmul(np.swapaxes(X[k], 1, 2), F[k])
+        self._add_extras(Y, v, vd)
+        return Y
+
+    def _node_constants(self):
+        """Per node (R_PF, p_PF, R_MB, p_MB, R_FM, p_FM of welds) as numpy arrays, read once
+        from the Drake frames (pydrake accessors cost microseconds per call)."""
+        c = getattr(self, "_consts", None)
+        if c is None:
+            c = []
+            for nd in self._nodes:
+                R_BM, p_BM = nd.X_BM.rotation().matrix(), nd.X_BM.translation()
+                R_MB = R_BM.T.copy()
+                weld = nd.kind == "weld"
+                c.append((nd.X_PF.rotation().matrix().copy(), nd.X_PF.translation().copy(), R_MB, -R_MB @ p_BM,
+                          nd.X_FM.rotation().matrix().copy() if weld else None,
+                          nd.X_FM.translation().copy() if weld else None))
+            self._consts = c
+        return c
+
+    # ------------------------------------------------------------------ standard regressor (world frame)
+    def _world_constants(self):
+        """Constants of :meth:`_standard_world`.
+
+        Per node, the pose of the body in its parent, X_PB(q) = X_PF X_FM(q) X_MB, is written
+        as constants times (1, sin q, 1 - cos q) for revolute joints (Rodrigues:
+        R_FM = I + s K + (1 - c) K^2), (1, q) for prismatic ones, constant for welds; for nodes
+        whose parent is welded to the world the parent's world pose is folded in, so their
+        parent is the world (index nb).  ``support[k, i]`` = 1 when joint i's child body is
+        node k or one of its ancestors."""
+        c = getattr(self, "_wconsts", None)
+        if c is not None:
+            return c
+        nodes = self._nodes
+        nb = len(nodes)
+        ctx0 = self.plant.CreateDefaultContext()
+        consts = self._node_constants()
+        R0 = np.zeros((nb, 3, 3))
+        R1 = np.zeros((nb, 3, 3))
+        R2 = np.zeros((nb, 3, 3))
+        p0 = np.zeros((nb, 3))
+        p1 = np.zeros((nb, 3))
+        p2 = np.zeros((nb, 3))
+        a_P = np.zeros((nb, 3))  # joint axis in the parent (world for roots)
+        pF_P = np.zeros((nb, 3))  # joint frame origin in the parent (world for roots)
+        parent = np.zeros(nb, dtype=int)
+        for k, nd in enumerate(nodes):
+            R_PF, p_PF, R_MB, p_MB, R_FMw, p_FMw = consts[k]
+            if nd.parent < 0:
+                X = self.plant.EvalBodyPoseInWorld(ctx0, nd.joint.parent_body())
+                R_WP, p_WP = X.rotation().matrix(), X.translation()
+                R_PF, p_PF = R_WP @ R_PF, p_WP + R_WP @ p_PF
+                parent[k] = nb
+            else:
+                parent[k] = nd.parent
+            if nd.kind == "weld":
+                R0[k] = R_PF @ R_FMw @ R_MB
+                p0[k] = p_PF + R_PF @ (p_FMw + R_FMw @ p_MB)
+            elif nd.kind == "revolute":
+                Kx = _skew(nd.axis)
+                R0[k], R1[k], R2[k] = R_PF @ R_MB, R_PF @ Kx @ R_MB, R_PF @ Kx @ Kx @ R_MB
+                p0[k], p1[k], p2[k] = p_PF + R_PF @ p_MB, R_PF @ Kx @ p_MB, R_PF @ Kx @ Kx @ p_MB
+            else:
+                R0[k] = R_PF @ R_MB
+                p0[k], p1[k] = p_PF + R_PF @ p_MB, R_PF @ nd.axis
+            a_P[k] = R_PF @ nd.axis if nd.kind != "weld" else 0.0
+            pF_P[k] = p_PF
+        joints = [k for k, nd in enumerate(nodes) if nd.kind != "weld"]
+        jpos = {k: i for i, k in enumerate(joints)}
+        nj = len(joints)
+        support = np.zeros((nb, nj))
+        for k in range(nb):
+            a = k
+            while a >= 0:
+                if a in jpos:
+                    support[k, jpos[a]] = 1.0
+                a = nodes[a].parent
+        J = np.array(joints, dtype=int)
+        rev = np.array([nodes[k].kind == "revolute" for k in joints], dtype=bool)
+        c = {"R0": R0, "R1": R1[J[rev]], "R2": R2[J[rev]], "p0": p0, "p1r": p1[J[rev]], "p2r": p2[J[rev]],
+             "p1p": p1[J[~rev]], "rev_nodes": J[rev], "pri_nodes": J[~rev],
+             "rev_q": np.array([nodes[k].qi for k in J[rev]], dtype=int),
+             "pri_q": np.array([nodes[k].qi for k in J[~rev]], dtype=int),
+             "parent": parent, "joints": J, "joint_parent": parent[J], "a_P": a_P[J], "pF_P": pF_P[J],
+             "revolute": rev, "support": support, "vi": np.array([nodes[k].vi for k in joints], dtype=int),
+             "topo": [(k, int(parent[k])) for k in range(nb)],
+             "g": np.asarray(self.plant.gravity_field().gravity_vector(), dtype=float).copy()}
+        self._wconsts = c
+        return c
+
+    def _standard_world(self, q, v, vd):
+        """The standard regressor (N, n, p_standard) with every body's motion in world (Plucker,
+        world-origin) coordinates, batched over bodies: the parent-to-body poses of all joints in
+        one Rodrigues expression, forward kinematics as the only loop over the tree (two small
+        products per body), then V = sum of S_j qd_j over supporting joints, A = -g + sum(S_j
+        qdd_j + V_j x S_j qd_j), the body regressors K(v_B, a_B) of all bodies in one call,
+        forces to world coordinates and tau_j = S_j^T (sum over supported bodies).  Same result
+        as the recursive Newton-Euler of :meth:`_standard_numeric_recursive` (tested)."""
+        N = q.shape[0]
+        nb = len(self._nodes)
+        wc = self._world_constants()
+        # parent-to-body poses of every node, (N, nb, 3, 3) and (N, nb, 3)
+        R_PB = np.repeat(wc["R0"][None], N, axis=0)
+        p_PB = np.repeat(wc["p0"][None], N, axis=0)
+        rn = wc["rev_nodes"]
+        if rn.size:
+            ang = q[:, wc["rev_q"]]
+            s, c1 = np.sin(ang), 1.0 - np.cos(ang)
+            R_PB[:, rn] += s[..., None, None] * wc["R1"] + c1[..., None, None] * wc["R2"]
+            p_PB[:, rn] += s[..., None] * wc["p1r"] + c1[..., None] * wc["p2r"]
+        pn = wc["pri_nodes"]
+        if pn.size:
+            p_PB[:, pn] += q[:, wc["pri_q"], None] * wc["p1p"]
+        # world poses; slot nb is the world itself
+        R_W = np.empty((N, nb + 1, 3, 3))
+        p_W = np.empty((N, nb + 1, 3))
+        R_W[:, nb] = _EYE3
+        p_W[:, nb] = 0.0
+        for k, par in wc["topo"]:
+            Rp = R_W[:, par]
+            R_W[:, k] = Rp @ R_PB[:, k]
+            p_W[:, k] = p_W[:, par] + (Rp @ p_PB[:, k, :, None])[..., 0]
+        R_WB, p_WB = R_W[:, :nb], p_W[:, :nb]
+        # joint motion subspaces in world-origin Plucker coordinates
+        jp = wc["joint_parent"]
+        Rj = R_W[:, jp]
+        a_W = (Rj @ wc["a_P"][..., None])[..., 0]
+        pF = p_W[:, jp] + (Rj @ wc["pF_P"][..., None])[..., 0]
+        nj = jp.size
+        S = np.zeros((N, nj, 6))
+        rev = wc["revolute"]
+        S[:, rev, :3] = a_W[:, rev]
+        S[:, rev, 3:] = _cross(pF[:, rev], a_W[:, rev])
+        S[:, ~rev, 3:] = a_W[:, ~rev]
+        sup = wc["support"]  # (nb, nj)
+        qd = v[:, wc["vi"]]
+        qdd = vd[:, wc["vi"]]
+        Sqd = S * qd[..., None]
+        V = sup @ Sqd  # (N, nb, 6)
+        c_j = S * qdd[..., None] + _crm_times(V[:, wc["joints"]], Sqd)
+        A = sup @ c_j
+        A[:, :, 3:] -= wc["g"]
+        # to body coordinates: w_B = R^T w, v_B = R^T (v_O + w x p)
+        RT = np.swapaxes(R_WB, -1, -2)
+        VA = np.concatenate([V, A], axis=1)  # (N, 2 nb, 6)
+        RT2 = np.concatenate([RT, RT], axis=1)
+        p2 = np.concatenate([p_WB, p_WB], axis=1)
+        w, vo = VA[..., :3], VA[..., 3:]
+        B = np.concatenate([(RT2 @ w[..., None])[..., 0], (RT2 @ (vo + _cross(w, p2))[..., None])[..., 0]], axis=-1)
+        Kb = _body_force_regressor(B[:, :nb].reshape(N * nb, 6), B[:, nb:].reshape(N * nb, 6)).reshape(N, nb, 6, 10)
+        # forces to world coordinates: f_W = R f_B, n_O = R n_B + p x (R f_B)
+        Rf = R_WB @ Kb[:, :, 3:, :]
+        Rn = R_WB @ Kb[:, :, :3, :] + _skew(p_WB) @ Rf
+        G = np.concatenate([Rn, Rf], axis=2)  # (N, nb, 6, 10)
+        T = (S[:, None, :, :] @ G) * sup[None, :, :, None]  # (N, nb, nj, 10)
+        Y = np.zeros((N, self.n, self.p_standard))
+        Y[:, wc["vi"], :10 * nb] = np.swapaxes(T, 1, 2).reshape(N, nj, 10 * nb)
         self._add_extras(Y, v, vd)
         return Y
 
@@ -515,6 +697,7 @@ class InverseDynamicsRegressor:
         self._sym_time = time.perf_counter() - t0
         self._W_expr, self._sym_qva = np.asarray(W), (list(qv), list(vv), list(av))
         self._W_fun = _compile_matrix(self._W_expr, {"q": list(qv), "v": list(vv), "vd": list(av)})
+        self._W_scalar = _compile_matrix(self._W_expr, {"q": list(qv), "v": list(vv), "vd": list(av)}, scalar=True)
         self._alpha = np.asarray(alpha).ravel()
         self._params_vars = params
         self._A = self._alpha_linear_map()
@@ -625,6 +808,83 @@ class InverseDynamicsRegressor:
         """Base regressor Y, (N, n, p_base): tau = Y @ theta_base (gravity included)."""
         return self.evaluate_standard(q, v, vdot)[:, :, self.base_index]
 
+    # ------------------------------------------------------------------ Slotine-Li regressor
+    def _slotine_li_std(self, q, qd, v, a) -> np.ndarray:
+        """Standard-parameter Slotine-Li regressor for checked (N, n) arrays, (N, n, p_standard).
+
+        Polarisation of the velocity-product term: with C from the Christoffel symbols,
+        C(q, qd) v is symmetric bilinear in (qd, v), so with h(q, w) = C(q, w) w (the
+        velocity-product part of inverse dynamics)
+
+            C(q, qd) v = 1/4 [h(q, qd + v) - h(q, qd - v)].
+
+        In regressor form: Y_SL = Y(q, 0, a) + 1/4 [Y(q, qd + v, 0) - Y(q, qd - v, 0)];
+        Y(q, 0, a) carries M(q) a + g(q) (and the reflected-inertia columns Ia_j a_j), the
+        gravity columns cancel in the difference.  Joint damping acts on the true velocity:
+        its columns b_j are set to qd_j (the difference would give v_j / 2).
+        """
+        N, n = q.shape
+        z = np.zeros((N, n))
+        Q = np.concatenate([q, q, q])
+        W = np.concatenate([z, qd + v, qd - v])
+        A = np.concatenate([a, z, z])
+        Ys = self._standard_symbolic(Q, W, A) if self.method == "symbolic" else self._standard_numeric(Q, W, A)
+        Y = Ys[:N] + 0.25 * (Ys[N:2 * N] - Ys[2 * N:])
+        base = 10 * len(self._nodes)
+        for c, (_, kind, vi) in enumerate(self._extras):
+            if kind == "b":
+                Y[:, vi, base + c] = qd[:, vi]
+        return Y
+
+    def slotine_li(self, q, qd, v, a) -> np.ndarray:
+        """Slotine-Li regressor Y(q, qd, v, a), (N, n, p_base), for the base parameters of
+        :meth:`evaluate` (same theta_base):
+
+            Y(q, qd, v, a) theta_base = M(q) a + C(q, qd) v + g(q)  [+ Ia_j a_j + b_j qd_j]
+
+        (JS eq. 15 generalised to any URDF arm; C from Christoffel symbols, so M' - 2C is skew,
+        JS eq. 6).  Inputs (N, n) or (n,): positions [rad or m], velocity qd, reference
+        velocity v, reference acceleration a (SI).  With v = qd, a = qdd it is :meth:`evaluate`.
+        """
+        q, qd, v, a = self._inputs4(q, qd, v, a)
+        return self._slotine_li_std(q, qd, v, a)[:, :, self.base_index]
+
+    def slotine_li_single(self, q, qd, v, a) -> np.ndarray:
+        """One sample of :meth:`slotine_li`, (n, p_base), for the per-tick controller path:
+        inputs are length-n sequences and are not checked (use :meth:`slotine_li` elsewhere)."""
+        n = self.n
+        if self.method == "symbolic":
+            return self._slotine_li_single_symbolic(q, qd, v, a)
+        f = np.asarray
+        Y = self._slotine_li_std(f(q, float).reshape(1, n), f(qd, float).reshape(1, n),
+                                 f(v, float).reshape(1, n), f(a, float).reshape(1, n))
+        return Y[0][:, self.base_index]
+
+    def _slotine_li_single_symbolic(self, q, qd, v, a):
+        """Symbolic route, one sample: the compiled lumped regressor in scalar math at the three
+        polarisation states, combined in the lumped space (linear), then mapped by alpha = A pi."""
+        n = self.n
+        q, qd, v, a = (list(map(float, x)) for x in (q, qd, v, a))
+        z = [0.0] * n
+        f = self._W_scalar
+        W0 = np.array(f(q, z, a))
+        Wp = np.array(f(q, [x + y for x, y in zip(qd, v)], z))
+        Wm = np.array(f(q, [x - y for x, y in zip(qd, v)], z))
+        Y = np.zeros((n, self.p_standard))
+        Y[:, :10 * len(self._nodes)] = (W0 + 0.25 * (Wp - Wm)) @ self._A
+        base = 10 * len(self._nodes)
+        for c, (_, kind, vi) in enumerate(self._extras):
+            Y[vi, base + c] = a[vi] if kind == "Ia" else qd[vi]
+        return Y[:, self.base_index]
+
+    def _inputs4(self, q, qd, v, a):
+        arrs = [np.asarray(x, dtype=float) for x in (q, qd, v, a)]
+        arrs = [x[None, :] if x.ndim == 1 else x for x in arrs]
+        n = self.n
+        if any(x.ndim != 2 or x.shape[1] != n for x in arrs) or len({x.shape[0] for x in arrs}) != 1:
+            raise RobustDrakeError(f"q, qd, v, a must have shape (N, {n}) or ({n},) and equal N")
+        return arrs
+
     def torque(self, q, v, vdot, theta_base=None) -> np.ndarray:
         """Inverse dynamics (N, n) from the regressor with theta_base (default: the URDF's)."""
         th = self.base_parameters() if theta_base is None else np.asarray(theta_base, float)
@@ -732,16 +992,17 @@ def clear_cache() -> None:
 # ----------------------------------------------------------------------------- expression compiler
 
 
-def _compile_matrix(W, groups):
+def _compile_matrix(W, groups, scalar: bool = False):
     """Compile a matrix of pydrake Expressions in the variables ``groups`` ({"q": [Variable...],
     ...}) into ``f(q, v, vd) -> (N, rows, cols)``, one vectorised numpy function (common
-    subexpressions shared)."""
+    subexpressions shared).  ``scalar=True``: ``f(q, v, vd) -> rows x cols nested lists`` for one
+    sample (sequences of floats), in ``math`` functions (no numpy call per operation)."""
     from pydrake.symbolic import ExpressionKind
 
     var_code = {}
     for g, vs in groups.items():
         for i, x in enumerate(vs):
-            var_code[x.get_id()] = f"{g}[:, {i}]"
+            var_code[x.get_id()] = f"{g}[{i}]" if scalar else f"{g}[:, {i}]"
     lines, memo = [], {}
     unary = {
         ExpressionKind.Sin: "np.sin", ExpressionKind.Cos: "np.cos", ExpressionKind.Tan: "np.tan",
@@ -774,11 +1035,11 @@ def _compile_matrix(W, groups):
         elif kind in unary:
             code = f"{unary[kind]}({sub[0]})"
         elif kind == ExpressionKind.Atan2:
-            code = f"np.arctan2({sub[0]}, {sub[1]})"
+            code = f"{'math.atan2' if scalar else 'np.arctan2'}({sub[0]}, {sub[1]})"
         elif kind == ExpressionKind.Min:
-            code = f"np.minimum({sub[0]}, {sub[1]})"
+            code = f"{'min' if scalar else 'np.minimum'}({sub[0]}, {sub[1]})"
         elif kind == ExpressionKind.Max:
-            code = f"np.maximum({sub[0]}, {sub[1]})"
+            code = f"{'max' if scalar else 'np.maximum'}({sub[0]}, {sub[1]})"
         else:
             raise RobustDrakeError(f"cannot compile expression kind {kind}")
         name = f"t{len(memo)}"
@@ -786,17 +1047,22 @@ def _compile_matrix(W, groups):
         memo[key] = name
         return name
 
+    if scalar:
+        unary = {k: ("abs" if f == "np.abs" else f.replace("np.arc", "math.a").replace("np.", "math."))
+                 for k, f in unary.items()}
     rows, cols = W.shape
-    body = ["def _f(q, v, vd):", "    N = q.shape[0]"]
+    body = ["def _f(q, v, vd):"] if scalar else ["def _f(q, v, vd):", "    N = q.shape[0]"]
     assigns = []
     for i in range(rows):
         for j in range(cols):
             e = W[i, j]
             if e.get_kind() == ExpressionKind.Constant and e.Evaluate() == 0.0:
                 continue
-            assigns.append(f"    out[:, {i}, {j}] = {emit(e)}")
-    src = "\n".join(body + lines + [f"    out = np.zeros((N, {rows}, {cols}))"] + assigns + ["    return out"])
-    ns = {"np": np}
+            assigns.append((f"    out[{i}][{j}] = " if scalar else f"    out[:, {i}, {j}] = ") + emit(e))
+    alloc = (f"    out = [[0.0] * {cols} for _ in range({rows})]" if scalar
+             else f"    out = np.zeros((N, {rows}, {cols}))")
+    src = "\n".join(body + lines + [alloc] + assigns + ["    return out"])
+    ns = {"np": np, "math": math}
     exec(compile(src, "<regressor>", "exec"), ns)
     f = ns["_f"]
     f.source = src

@@ -265,3 +265,14 @@ def test_joint_damping_becomes_a_parameter(tmp_path):
         assert reg.base_parameters()[reg.base_names.index("b_joint2")] == pytest.approx(0.7)
         tau_r = reg.evaluate(q, v, vd) @ reg.base_parameters()
         assert np.abs(tau_r - tau).max() <= 1e-9 * np.abs(tau).max()
+
+
+@pytest.mark.parametrize("robot,load", ALL)
+def test_batched_world_frame_regressor_equals_the_recursive_one(robot, load):
+    """The numeric route's batched world-frame evaluation against the body-frame recursive
+    Newton-Euler regressor (two different algorithms, same standard columns)."""
+    reg = InverseDynamicsRegressor.from_robot(robot, load, method="numeric")
+    q, v, vd = _states(reg.n, 12, seed=44)
+    Yw = reg._standard_world(q, v, vd)
+    Yr = reg._standard_numeric_recursive(q, v, vd)
+    np.testing.assert_allclose(Yw, Yr, rtol=0, atol=1e-12 * np.abs(Yr).max())

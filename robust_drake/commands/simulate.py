@@ -27,7 +27,7 @@ def register(sub):
 
 
 def run(args) -> int:
-    from robust_drake.diagram import ClosedLoopConfig, simulate
+    from robust_drake.diagram import ClosedLoopConfig, build_closed_loop
 
     if args.plot is not None and not args.plot.strip():
         raise RobustDrakeError("--plot is empty; give a file or folder path")
@@ -38,7 +38,8 @@ def run(args) -> int:
                            trajectory=args.trajectory, observer=args.observer, rate=args.rate,
                            duration=args.duration, metrics_skip=skip,
                            friction_compensation=args.friction_compensation)
-    res = simulate(cfg)
+    loop = build_closed_loop(cfg)
+    res = loop.simulate()
     if args.plot:
         from robust_drake.plotting import plot_tracking
 
@@ -46,6 +47,10 @@ def run(args) -> int:
     out = res.to_dict()
     out.update(robot=args.robot, load=args.load, controller=args.controller, trajectory=args.trajectory,
                rate=args.rate)
+    # the parameter uncertainty set behind a robust controller's bound (None for others)
+    unc = getattr(loop.controller, "uncertainty", None)
+    rho = getattr(loop.controller, "rho", None)
+    out.update(uncertainty=unc, rho=rho if unc is not None else None)
     if args.json:
         print_json(out)
     else:
@@ -54,6 +59,8 @@ def run(args) -> int:
               + (f"  ** DIVERGED: {res.divergence_reason} **" if res.diverged else ""))
         print(format_table([[out[k] for k in METRIC_KEYS]],
                            ["|error1| rad", "maxerr1 rad", "|error2| rad", "maxerr2 rad", "|error_task| m", "maxerr_task m"]))
+        if unc is not None:
+            print(f"uncertainty: {unc.get('kind')} ({unc.get('source', '')}), rho = {rho}")
         if args.plot:
             print(f"plot: {args.plot}")
     return 1 if res.diverged else 0

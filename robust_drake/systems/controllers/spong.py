@@ -14,11 +14,22 @@ with the same K and Lambda (what SP1/SP2 must beat).
 D2R2 numbers (appendix 12.1): theta_0 = table 11, rho = 0.1062 (SP1; the Euclidean norm of
 theta_0 - theta_unloaded; eq. 17 prints the sum without squares), rho_i = table 10 (SP2),
 K = diag(30, 10), Lambda = diag(50, 20) (section 8), epsilon from table 1 (SP1: 1, SP2: 0.5).
+
+Any other URDF arm (serial7, siciliano_2link, ...): Y is the Drake-derived Slotine-Li regressor
+(:meth:`robust_drake.regressor.InverseDynamicsRegressor.slotine_li`, gravity included), theta_0 the
+URDF's base parameters, the uncertainty set a box |theta_i - theta0_i| <= rel_bound |theta0_i| +
+abs_bound (:func:`box_uncertainty`; SP1's rho = ||b||_2, SP2's rho_i = b_i), gains from
+:func:`default_gains` and boundary layers from :func:`default_epsilon`.  Which robots have a
+closed form is the interim registry :data:`CLOSED_FORM_SLOTINE_LI` (keyed by robot name).
+The controller systems are thin wrappers: ``compute`` is :func:`spong_law`.
 """
 
 from __future__ import annotations
 
+import functools
 import math
+from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
@@ -48,18 +59,28 @@ def spong_error_terms(q_d, qd_d, qdd_d, q, v_error, Lambda):
     return q_tilde, r, v, a
 
 
-def sp1_robust_input(xi, rho: float, epsilon: float) -> list:
+def sp1_robust_input(xi, rho: float, epsilon: float):
     """JS eq. 18: u = -rho xi/||xi|| if ||xi|| > epsilon else -(rho/epsilon) xi, xi = Y^T r.
 
-    Scalar Python math on purpose: it runs at every 2500 Hz tick on 3-vectors.
+    ``xi`` a numpy array gives an array (n-joint path); a list or tuple gives a list computed in
+    scalar Python math (the 2500 Hz D2R2 path on 3-vectors).
     """
+    if isinstance(xi, np.ndarray):
+        norm = math.sqrt(float(xi @ xi))
+        g = rho / norm if norm > epsilon else rho / epsilon
+        return -g * xi
     norm = math.sqrt(sum(x * x for x in xi))
     g = rho / norm if norm > epsilon else rho / epsilon
     return [-g * x for x in xi]
 
 
-def sp2_robust_input(xi, rho, epsilon) -> list:
-    """JS eq. (SP2): componentwise u_i = -rho_i sgn(xi_i) outside |xi_i| <= epsilon_i, linear inside."""
+def sp2_robust_input(xi, rho, epsilon):
+    """JS eq. (SP2): componentwise u_i = -rho_i sgn(xi_i) outside |xi_i| <= epsilon_i, linear inside.
+
+    Array in, array out; list in, list out (as :func:`sp1_robust_input`)."""
+    if isinstance(xi, np.ndarray):
+        rho, epsilon = np.asarray(rho, dtype=float), np.asarray(epsilon, dtype=float)
+        return np.where(np.abs(xi) > epsilon, -rho * np.sign(xi), -(rho / epsilon) * xi)
     out = []
     for x, r, e in zip(xi, rho, epsilon):
         out.append(-r * math.copysign(1.0, x) if abs(x) > e else -(r / e) * x)
@@ -69,6 +90,16 @@ def sp2_robust_input(xi, rho, epsilon) -> list:
 def spong_torque(Y, theta0, u, K, r) -> np.ndarray:
     """JS eq. 12: tau = Y (theta_0 + u) - K r (u = 0 gives the nominal law, eq. 10)."""
     return Y @ (np.asarray(theta0) + u) - K * r
+
+
+def spong_law(regressor, robust_input, theta0, K, Lambda, q_d, qd_d, qdd_d, q, v_hat, v_error) -> np.ndarray:
+    """One sample of SP1/SP2 (JS eqs. 11, 12 with u from eq. 18 or SP2), composed of
+    :func:`spong_error_terms`, the regressor Y(q, q', v, a), xi = Y^T r, ``robust_input(xi)`` and
+    :func:`spong_torque`.  ``v_hat`` is the velocity estimate used as q' in Y; returns tau [N m]."""
+    _, r, v, a = spong_error_terms(q_d, qd_d, qdd_d, q, v_error, Lambda)
+    Y = np.asarray(regressor(q, v_hat, v, a), dtype=float)
+    u = np.asarray(robust_input(Y.T @ r), dtype=float)
+    return spong_torque(Y, theta0, u, K, r)
 
 
 # --------------------------------------------------------------------------- systems
@@ -87,19 +118,32 @@ class PDController(DiscreteController):
 
 
 class _SpongController(DiscreteController):
-    def __init__(self, n, period, regressor, theta0, K, Lambda, name):
+    """Thin wrapper: :meth:`compute` is :func:`spong_law` with this controller's regressor,
+    theta_0, K, Lambda and robust input.  ``scalar_fast_path=True`` (closed-form 2-joint
+    regressors such as JS eq. 15) runs the same eqs. 11-12 in scalar Python math instead;
+    tests/test_slotine_li.py checks both paths give the same torque."""
+
+    def __init__(self, n, period, regressor, theta0, K, Lambda, name, scalar_fast_path=False):
         super().__init__(n, period, name=name)
         self.regressor = regressor
         self.theta0 = np.asarray(theta0, dtype=float)
         self.K = diag_gain(K, n, "K")
         self.Lambda = diag_gain(Lambda, n, "Lambda")
         self._Lam, self._K, self._theta0 = self.Lambda.tolist(), self.K.tolist(), self.theta0.tolist()
+        self.scalar_fast_path = bool(scalar_fast_path)
+        self.uncertainty = None  # the parameter set rho comes from (set by the factories)
 
     def robust_input(self, xi):  # pragma: no cover - abstract
         raise NotImplementedError
 
     def compute(self, t, q_d, qd_d, qdd_d, q, v, v_error):
-        # eqs. 11 and 12 in scalar Python (same math as spong_error_terms / spong_torque)
+        if self.scalar_fast_path:
+            return self.compute_scalar(q_d, qd_d, qdd_d, q, v, v_error)
+        return spong_law(self.regressor, self.robust_input, self.theta0, self.K, self.Lambda,
+                         q_d, qd_d, qdd_d, q, v, v_error)
+
+    def compute_scalar(self, q_d, qd_d, qdd_d, q, v, v_error):
+        """eqs. 11 and 12 in scalar Python (same math as :func:`spong_law`), for small n."""
         n, Lam, K, th = self.n, self._Lam, self._K, self._theta0
         q, v, q_d, qd_d, qdd_d, v_error = q.tolist(), v.tolist(), q_d.tolist(), qd_d.tolist(), qdd_d.tolist(), v_error.tolist()
         r, vref, a = [0.0] * n, [0.0] * n, [0.0] * n
@@ -119,8 +163,8 @@ class _SpongController(DiscreteController):
 class SpongSP1Controller(_SpongController):
     """SP1 (JS eqs. 9-12, 18): a single uncertainty bound rho and boundary layer epsilon."""
 
-    def __init__(self, n, period, regressor, theta0, rho, epsilon, K, Lambda):
-        super().__init__(n, period, regressor, theta0, K, Lambda, "SpongSP1Controller")
+    def __init__(self, n, period, regressor, theta0, rho, epsilon, K, Lambda, scalar_fast_path=False):
+        super().__init__(n, period, regressor, theta0, K, Lambda, "SpongSP1Controller", scalar_fast_path)
         if rho < 0 or epsilon <= 0:
             raise RobustDrakeError(f"SP1 needs rho >= 0 and epsilon > 0 (got {rho}, {epsilon})")
         self.rho = float(rho)
@@ -133,15 +177,18 @@ class SpongSP1Controller(_SpongController):
 class SpongSP2Controller(_SpongController):
     """SP2 (JS eqs. 9-12, SP2): per-parameter bounds rho_i and boundary layers epsilon_i."""
 
-    def __init__(self, n, period, regressor, theta0, rho, epsilon, K, Lambda):
-        super().__init__(n, period, regressor, theta0, K, Lambda, "SpongSP2Controller")
+    def __init__(self, n, period, regressor, theta0, rho, epsilon, K, Lambda, scalar_fast_path=False):
+        super().__init__(n, period, regressor, theta0, K, Lambda, "SpongSP2Controller", scalar_fast_path)
         p = self.theta0.shape[0]
         self.rho = np.broadcast_to(np.asarray(rho, dtype=float), (p,)).tolist()
         self.epsilon = np.broadcast_to(np.asarray(epsilon, dtype=float), (p,)).tolist()
         if min(self.rho) < 0 or min(self.epsilon) <= 0:
             raise RobustDrakeError("SP2 needs rho_i >= 0 and epsilon_i > 0")
+        self._rho_np, self._eps_np = np.array(self.rho), np.array(self.epsilon)
 
     def robust_input(self, xi):
+        if isinstance(xi, np.ndarray):
+            return sp2_robust_input(xi, self._rho_np, self._eps_np)
         return sp2_robust_input(xi, self.rho, self.epsilon)
 
 
@@ -157,39 +204,198 @@ def d2r2_regressor_single(q, qd, v, a) -> list:
     return [[a1, a1 + a2, y13], [0.0, a1 + a2, y23]]
 
 
-def _slotine_li_regressor(ctx, params):
-    """The regressor Y(q, qd, v, a) for the robot in ``ctx`` (only the D2R2's eq. 15 is built in)."""
+@dataclass(frozen=True)
+class ClosedFormSlotineLi:
+    """A robot whose Slotine-Li regressor is printed in closed form, with the paper's design.
+
+    ``regressor(q, qd, v, a)`` returns the n x p matrix for one sample (nested lists, scalar math);
+    ``theta0``, ``rho_sp1`` (bound on ||theta~||_2), ``rho_sp2`` (bounds on |theta~_i|), gains
+    ``K``, ``Lambda`` and a JSON-able description of the uncertainty set."""
+
+    regressor: Callable
+    theta0: tuple
+    rho_sp1: float
+    rho_sp2: tuple
+    K: tuple
+    Lambda: tuple
+    uncertainty: dict
+
+
+def _d2r2_closed_form() -> ClosedFormSlotineLi:
+    from robust_drake.models import D2R2_THETA0, D2R2_THETA_LOADED, D2R2_THETA_UNLOADED
+
+    return ClosedFormSlotineLi(
+        regressor=d2r2_regressor_single, theta0=tuple(D2R2_THETA0), rho_sp1=D2R2_RHO_SP1,
+        rho_sp2=D2R2_RHO_SP2, K=D2R2_K, Lambda=D2R2_LAMBDA,
+        uncertainty={
+            "kind": "box", "source": "Jaritz & Spong appendix 12.1 (eq. 93 load intervals, tables 8-11)",
+            "parameters": ["m1 lc1^2 + m2 l1^2 + I1", "m2 lc2^2 + I2", "m2 l1 lc2"],
+            "theta0": list(D2R2_THETA0), "bounds": list(D2R2_RHO_SP2),
+            "theta_unloaded": list(D2R2_THETA_UNLOADED), "theta_loaded": list(D2R2_THETA_LOADED),
+        })
+
+
+#: Robots with a closed-form Slotine-Li regressor (interim registry keyed by robot name, until
+#: robot descriptions carry this capability).  Every other URDF arm uses the Drake-derived one.
+CLOSED_FORM_SLOTINE_LI: dict[str, Callable[[], ClosedFormSlotineLi]] = {"d2r2": _d2r2_closed_form}
+
+#: Defaults for arms without published gains (see :func:`default_gains`).
+DEFAULT_LAMBDA = 20.0  # 1/s, bandwidth of q~ on the sliding surface r = 0
+DEFAULT_K_BANDWIDTH = 20.0  # 1/s, K = this * diag(M(0)): bandwidth of r under K alone
+DEFAULT_REL_BOUND = 0.2  # box half-width relative to |theta0_i|
+
+
+def default_gains(ctx):
+    """(K, Lambda) for the loop in ``ctx``: JS section 8's diag(30, 10), diag(50, 20) for robots
+    with a closed-form design (the D2R2); otherwise Lambda = 20 I [1/s] and
+    K = 20 [1/s] * diag(M(0)) [N m s/rad], so every joint's r decays at about 20 1/s under K
+    alone whatever its inertia (M from the URDF at q = 0, reflected rotor inertia included)."""
+    cf = CLOSED_FORM_SLOTINE_LI.get(ctx.robot)
+    if cf is not None:
+        d = cf()
+        return d.K, d.Lambda
+    return _mass_matrix_gains(str(ctx.robot), ctx.load), (DEFAULT_LAMBDA,) * ctx.n
+
+
+@functools.lru_cache(maxsize=32)
+def _mass_matrix_gains(robot, load):
+    from robust_drake.models import make_plant, resolve_urdf
+
+    plant = make_plant(str(resolve_urdf(robot, load)))
+    M0 = plant.CalcMassMatrix(plant.CreateDefaultContext())
+    return tuple(DEFAULT_K_BANDWIDTH * np.diag(M0))
+
+
+def box_uncertainty(theta0, names, rel_bound=DEFAULT_REL_BOUND, abs_bound=0.0) -> dict:
+    """The box {theta : |theta_i - theta0_i| <= b_i}, b_i = rel_bound |theta0_i| + abs_bound.
+
+    SP1's rho bounds ||theta~||_2 (JS eqs. 8, 17-18); over the box its maximum is attained at a
+    vertex and equals ||b||_2 exactly.  SP2's rho_i bound |theta~_i| (eq. 8): rho_i = b_i.
+    Returns a JSON-able dict with ``theta0``, ``bounds`` (b), ``rho_sp1``, ``rho_sp2``."""
+    if not (np.isfinite(rel_bound) and rel_bound >= 0 and np.isfinite(abs_bound) and abs_bound >= 0):
+        raise RobustDrakeError(f"rel_bound and abs_bound must be finite and >= 0 (got {rel_bound}, {abs_bound})")
+    th = np.asarray(theta0, dtype=float)
+    b = rel_bound * np.abs(th) + abs_bound
+    return {"kind": "box", "source": "URDF base parameters +- rel_bound |theta0_i| + abs_bound",
+            "rel_bound": float(rel_bound), "abs_bound": float(abs_bound), "parameters": list(names),
+            "theta0": th.tolist(), "bounds": b.tolist(), "rho_sp1": float(np.linalg.norm(b)),
+            "rho_sp2": b.tolist()}
+
+
+def reference_regressor_norm(ctx, reg, samples: int = 200) -> float:
+    """max over the loop's reference of the spectral norm ||Y(q_d, qd_d, qd_d, qdd_d)||_2
+    (Y: the Slotine-Li regressor at zero tracking error, ``samples`` instants); nan if the loop
+    has no reference to sample."""
+    from robust_drake.trajectories import make_reference
+
+    cfg = ctx.config
+    if cfg is None or not hasattr(cfg, "trajectory"):
+        return float("nan")
+    ref = make_reference(ctx.arm, cfg.trajectory, **dict(getattr(cfg, "trajectory_params", {}) or {}))
+    duration = float(getattr(cfg, "duration", None) or ref.duration)
+    q, qd, qdd = (np.asarray(x, float).reshape(-1, ctx.n) for x in ref(np.linspace(0.0, duration, samples)))
+    Y = reg.evaluate(q, qd, qdd)
+    return float(np.linalg.norm(Y, ord=2, axis=(1, 2)).max())
+
+
+def default_epsilon(rho, K, y_max):
+    """Boundary layer for arms without published values: inside the layer SP1's robust term is
+    the gain (rho/epsilon) Y Y^T on r; epsilon = rho y_max^2 / min(K) caps it at min(K) along the
+    reference (y_max = max ||Y||_2 there), so the sampled loop keeps the bandwidth K gives.
+    SP2 componentwise: epsilon_i = rho_i y_max^2 / min(K) (1 where rho_i = 0, u_i = 0 then)."""
+    kmin = float(np.min(K))
+    r = np.asarray(rho, dtype=float)
+    if not np.isfinite(y_max) or y_max <= 0:
+        return np.ones_like(r) if r.ndim else 1.0
+    e = r * y_max ** 2 / kmin
+    if r.ndim == 0:
+        return float(e) if e > 0 else 1.0
+    return np.where(e > 0, e, 1.0)
+
+
+def _spong_design(ctx, params, which):
+    """(regressor, theta0, rho, uncertainty, scalar_fast_path) for SP1 (which=0) or SP2 (1).
+
+    Order: a user ``regressor`` (with ``theta0``/``rho`` from params, else D2R2 values as
+    before); a closed-form design for the robot (JS for the D2R2) unless ``rel_bound`` or
+    ``abs_bound`` ask for a box around its theta0; else the Drake-derived Slotine-Li regressor of
+    the URDF (:meth:`InverseDynamicsRegressor.slotine_li_single`) with theta0 = the URDF's base
+    parameters and rho from :func:`box_uncertainty`."""
+    box = {k: params.pop(k) for k in ("rel_bound", "abs_bound") if k in params}
     if "regressor" in params:
-        return params.pop("regressor")
-    if ctx.robot.startswith("d2r2"):
-        return d2r2_regressor_single
-    raise RobustDrakeError(
-        f"SP1/SP2 need a Slotine-Li regressor Y(q, qd, v, a); one is built in for d2r2 only. "
-        f"Pass controller_params={{'regressor': f, 'theta0': ..., 'rho': ...}} for {ctx.robot!r}."
-    )
+        from robust_drake.models import D2R2_THETA0
+
+        reg = params.pop("regressor")
+        theta0 = params.pop("theta0", D2R2_THETA0)
+        rho = params.pop("rho", (D2R2_RHO_SP1, D2R2_RHO_SP2)[which])
+        return reg, theta0, rho, {"kind": "user", "theta0": np.asarray(theta0, float).tolist()}, False
+    cf = CLOSED_FORM_SLOTINE_LI.get(ctx.robot)
+    if cf is not None:
+        d = cf()
+        theta0 = params.pop("theta0", d.theta0)
+        if box:
+            unc = box_uncertainty(theta0, d.uncertainty["parameters"], **box)
+            rho = params.pop("rho", (unc["rho_sp1"], unc["rho_sp2"])[which])
+        else:
+            unc = dict(d.uncertainty, rho_sp1=d.rho_sp1, rho_sp2=list(d.rho_sp2))
+            rho = params.pop("rho", (d.rho_sp1, d.rho_sp2)[which])
+        return d.regressor, theta0, rho, unc, True
+    from robust_drake.regressor import InverseDynamicsRegressor
+
+    reg = InverseDynamicsRegressor.from_robot(ctx.robot, ctx.load)
+    if reg.n != ctx.n:
+        raise RobustDrakeError(f"regressor of {ctx.robot!r} has {reg.n} joints, the loop has {ctx.n}")
+    theta0 = np.asarray(params.pop("theta0", reg.base_parameters()), dtype=float)
+    if theta0.shape != (reg.p_base,):
+        raise RobustDrakeError(f"theta0 must have the {reg.p_base} base parameters of {ctx.robot!r} "
+                               f"(InverseDynamicsRegressor.base_names), got shape {theta0.shape}")
+    unc = box_uncertainty(theta0, reg.base_names, **box)
+    rho = params.pop("rho", (unc["rho_sp1"], unc["rho_sp2"])[which])
+    if "epsilon" not in params:
+        K = params.get("K", default_gains(ctx)[0])
+        y_max = reference_regressor_norm(ctx, reg)
+        eps = default_epsilon(rho, np.broadcast_to(np.asarray(K, float), (ctx.n,)), y_max)
+        params["epsilon"] = eps
+        unc["epsilon_rule"] = {"y_max": y_max, "epsilon": np.asarray(eps).tolist()}
+    return reg.slotine_li_single, theta0, rho, unc, False
 
 
-def _defaults(params, **d):
-    out = dict(d)
-    out.update(params)
-    return out
+def _make_spong(ctx, params, which):
+    params = dict(params)
+    reg, theta0, rho, unc, fast = _spong_design(ctx, params, which)
+    K, Lam = default_gains(ctx) if not ("K" in params and "Lambda" in params) else (None, None)
+    p = dict(theta0=theta0, rho=rho, epsilon=(EPSILON_SP1, EPSILON_SP2)[which], K=K, Lambda=Lam)
+    p.update(params)
+    if K is not None and "K" not in params:
+        p["K"] = K
+    cls = (SpongSP1Controller, SpongSP2Controller)[which]
+    try:
+        c = cls(ctx.n, ctx.period, reg, scalar_fast_path=fast, **p)
+    except (ValueError, TypeError) as exc:
+        raise RobustDrakeError(f"{('sp1', 'sp2')[which]}: {exc}") from None
+    c.uncertainty = unc
+    return c
 
 
-def make_pd(ctx, K=D2R2_K, Lambda=D2R2_LAMBDA):
-    return PDController(ctx.n, ctx.period, K, Lambda)
+def make_pd(ctx, K=None, Lambda=None):
+    """PD baseline with the same default gains as SP1/SP2 (:func:`default_gains`)."""
+    if K is None or Lambda is None:
+        K0, L0 = default_gains(ctx)
+        K = K0 if K is None else K
+        Lambda = L0 if Lambda is None else Lambda
+    try:
+        return PDController(ctx.n, ctx.period, K, Lambda)
+    except ValueError as exc:
+        raise RobustDrakeError(f"pd: {exc}") from None
 
 
 def make_sp1(ctx, **params):
-    from robust_drake.models import D2R2_THETA0
-
-    reg = _slotine_li_regressor(ctx, params)
-    p = _defaults(params, theta0=D2R2_THETA0, rho=D2R2_RHO_SP1, epsilon=EPSILON_SP1, K=D2R2_K, Lambda=D2R2_LAMBDA)
-    return SpongSP1Controller(ctx.n, ctx.period, reg, **p)
+    """Registry factory ``sp1``: JS eqs. 9-12, 18 for any URDF arm (see :func:`_spong_design`).
+    Params: ``rel_bound``, ``abs_bound`` (uncertainty box), ``theta0``, ``rho``, ``epsilon``,
+    ``K``, ``Lambda``, ``regressor``."""
+    return _make_spong(ctx, params, 0)
 
 
 def make_sp2(ctx, **params):
-    from robust_drake.models import D2R2_THETA0
-
-    reg = _slotine_li_regressor(ctx, params)
-    p = _defaults(params, theta0=D2R2_THETA0, rho=D2R2_RHO_SP2, epsilon=EPSILON_SP2, K=D2R2_K, Lambda=D2R2_LAMBDA)
-    return SpongSP2Controller(ctx.n, ctx.period, reg, **p)
+    """Registry factory ``sp2``: JS eqs. 9-12, (SP2) for any URDF arm; as :func:`make_sp1`."""
+    return _make_spong(ctx, params, 1)

@@ -83,7 +83,9 @@ def _make_robust_friction(ctx, name, cls, which, epsilon, label, k_hat, rho_k, p
     rho = extended_bounds(rho_k=rho_k)[which]
     p = dict(theta0=_theta0_ext(k_hat), rho=rho, epsilon=epsilon, K=D2R2_K, Lambda=D2R2_LAMBDA)
     p.update(params)
-    c = cls(ctx.n, ctx.period, d2r2_friction_regressor, **p)
+    c = cls(ctx.n, ctx.period, d2r2_friction_regressor, scalar_fast_path=True, **p)
+    c.uncertainty = {"kind": "box", "source": "JS appendix 12.1 extended with Coulomb levels (eq. 91)",
+                     "theta0": list(p["theta0"]), "bounds": list(D2R2_RHO_SP2) + list(rho_k)}
     c.set_name(label)
     return c
 
