@@ -216,6 +216,33 @@ def test_structural_mode_frequency_and_damping_match_parameters():
     assert np.all(F[0] == 0.0) and np.max(np.abs(F[1])) > 0.9 * J_s * w ** 2 * 1e-3
 
 
+def test_structural_mode_under_constant_link_acceleration():
+    """Eq. F4's coupling: a link accelerating at a constant rate alpha settles at eta = -alpha / w^2,
+    and the joint then carries the torque -J_s alpha needed to accelerate the modal inertia."""
+    from pydrake.systems.primitives import Integrator, Multiplexer
+
+    w, zeta, J_s, alpha = 2 * math.pi * 100.0, 0.3, 0.02, 40.0
+    b = DiagramBuilder()
+    mode = b.AddSystem(make_structural_mode(1, [StructuralMode(joint=0, J_s=J_s, omega=w, zeta=zeta)]))
+    acc = b.AddSystem(ConstantVectorSource([alpha]))
+    i_v = b.AddSystem(Integrator(1))
+    i_q = b.AddSystem(Integrator(1))
+    mux = b.AddSystem(Multiplexer([1, 1]))
+    b.Connect(acc.get_output_port(0), i_v.get_input_port(0))
+    b.Connect(i_v.get_output_port(0), i_q.get_input_port(0))
+    b.Connect(i_q.get_output_port(0), mux.get_input_port(0))
+    b.Connect(i_v.get_output_port(0), mux.get_input_port(1))
+    b.Connect(mux.get_output_port(0), mode.GetInputPort("state"))
+    dgm = b.Build()
+    ctx = dgm.CreateDefaultContext()
+    _sim(dgm, ctx, 0.1, max_step=5e-5)  # 0.1 s = 19 time constants 1 / (zeta w)
+    mctx = mode.GetMyContextFromRoot(ctx)
+    eta = mode.GetOutputPort("deflection").Eval(mctx)[0]
+    tau = mode.GetOutputPort("generalized_force").Eval(mctx)[0]
+    assert eta == pytest.approx(-alpha / w ** 2, rel=1e-4)
+    assert tau == pytest.approx(-J_s * alpha, rel=1e-4)
+
+
 def test_flexibility_config_rejects_bad_input():
     with pytest.raises(RobustDrakeError):
         FlexibilityConfig(J_m=[0.01, 0.01], k=[1e4, 1e4], encoder="tip").validate(2)
