@@ -126,6 +126,7 @@ class ClosedLoopConfig:
     plant_setup: list = field(default_factory=list)
     feedforward: list = field(default_factory=list)
     divergence_error: float | None = TRACKING_ERROR_LIMIT
+    flexibility: Any = None  # FlexibilityConfig | dict | None (rigid); see robust_drake.systems.flexibility
 
     def __post_init__(self):
         self.validate()
@@ -153,6 +154,8 @@ class ClosedLoopConfig:
 
     def to_dict(self) -> dict:
         d = {k: getattr(self, k) for k in self.__dataclass_fields__ if k not in ("effects", "plant_setup", "feedforward")}
+        if self.flexibility is not None and hasattr(self.flexibility, "to_dict"):
+            d["flexibility"] = self.flexibility.to_dict()
         d["effects"] = [e if isinstance(e, (list, tuple)) else getattr(e, "__name__", repr(e)) for e in self.effects]
         return {k: (None if v is _DEFAULT else v) for k, v in d.items()}
 
@@ -316,10 +319,18 @@ class ClosedLoop:
         src.set_name("reference")
         x_d = src.get_output_port(0)
 
+        # drive / structural flexibility (None: rigid arm)
+        self.flexibility = None
+        if c.flexibility is not None:
+            from robust_drake.systems.flexibility import add_flexibility
+
+            self.flexibility = add_flexibility(builder, plant, c.flexibility, n)
+
         # sensor
         enc = builder.AddSystem(QuantizingEncoder(n, c.encoder_resolution))
         enc.set_name("encoder")
-        builder.Connect(plant.get_state_output_port(), enc.get_input_port(0))
+        builder.Connect(plant.get_state_output_port() if self.flexibility is None
+                        else self.flexibility.encoder_state, enc.get_input_port(0))
         q_meas = enc.get_output_port(0)
         self.encoder = enc
 
@@ -382,7 +393,7 @@ class ClosedLoop:
             builder.Connect(tau, obs.GetInputPort("tau"))
 
         # plant-side forces: applied torque + friction + effects
-        forces = [tau]
+        forces = [tau] if self.flexibility is None else self.flexibility.forces(builder, tau)
         self.effect_blocks = []
         if c.plant_friction is not None:
             fr = builder.AddSystem(CoulombViscousFriction(n, c.plant_friction["coulomb"], c.plant_friction["viscous"]))
@@ -409,7 +420,7 @@ class ClosedLoop:
                 builder.Connect(f, add.get_input_port(i))
             builder.Connect(add.get_output_port(0), plant.get_applied_generalized_force_input_port())
         else:
-            builder.Connect(tau, plant.get_applied_generalized_force_input_port())
+            builder.Connect(forces[0], plant.get_applied_generalized_force_input_port())
         if plant.num_actuators() > 0:
             zero = builder.AddSystem(ConstantVectorSource(np.zeros(plant.num_actuators())))
             builder.Connect(zero.get_output_port(0), plant.get_actuation_input_port())
@@ -464,6 +475,8 @@ class ClosedLoop:
             set_d2r2_theta(plant, plant_context, np.asarray(c.true_theta, dtype=float))
         for setup in c.plant_setup:
             setup(plant, plant_context)
+        if self.flexibility is not None:
+            self.flexibility.initialize(context, q0)
         obs_ctx = self.observer.GetMyMutableContextFromRoot(context)
         if hasattr(self.observer, "set_initial"):
             q0_meas = q0 if c.encoder_resolution is None else quantize(q0, c.encoder_resolution)
@@ -471,7 +484,9 @@ class ClosedLoop:
 
         self.reference_source.tabulate(duration)
         simulator = Simulator(self.diagram, context)
-        steps = max(1, math.ceil(self.period / MAX_INTEGRATOR_STEP - 1e-9))
+        max_step = MAX_INTEGRATOR_STEP if self.flexibility is None else min(
+            MAX_INTEGRATOR_STEP, self.flexibility.cfg.integrator_step())
+        steps = max(1, math.ceil(self.period / max_step - 1e-9))
         ResetIntegratorFromFlags(simulator, "runge_kutta2", self.period / steps)
         wall0 = time.perf_counter()
         integrator_error = None

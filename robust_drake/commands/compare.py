@@ -24,6 +24,9 @@ def register(sub):
                    help="velocity estimator (default: averaging, JS eqs. 64/66; also euler, filtered, averaging67, kalman, nonlinear)")
     p.add_argument("--rate", type=float, default=2500.0, help="sample rate [Hz] (paper: 2500)")
     p.add_argument("--duration", type=float, default=None, help="shorten every run [s] (tests, quick looks)")
+    p.add_argument("--rigid", action="store_true", help="rigid arm (the default; with --flexible: both, side by side)")
+    p.add_argument("--flexible", action="store_true",
+                   help="flexible D2R2: two-mass drives, motor-side encoders, link-2 bending (BUILD_NOTES 'Flexible D2R2')")
     p.add_argument("--workers", type=int, default=None, help="parallel runs (default: the core count)")
     add_output_flags(p, plot="DIR")
     p.set_defaults(func=run)
@@ -54,15 +57,19 @@ def run(args) -> int:
         raise RobustDrakeError(f"unknown observer {args.observer!r}; known: {', '.join(names('observer'))}")
     if args.duration is not None and not args.duration > 0:
         raise RobustDrakeError(f"--duration must be positive (got {args.duration})")
-    specs = [s for t in tables for s in js.table_runs(t, controllers, duration=args.duration, rate=args.rate,
-                                                      observer=args.observer, logs=bool(args.plot))]
+    models = [m for m, on in (("rigid", args.rigid), ("flexible", args.flexible)) if on] or ["rigid"]
+    specs = [js.run_spec(t, c, duration=args.duration, rate=args.rate, observer=args.observer,
+                         logs=bool(args.plot), model=m)
+             for t in tables for c in controllers for m in models]
     rows = js.run_specs(specs, workers=args.workers, progress=not args.json, desc="compare")
     plots = []
     if args.plot:
         for t in tables:
-            trows = [r for r in rows if r["table"] == t and "logs" in r]
-            if trows:
-                plots.append(str(js.plot_table(t, trows, args.plot)))
+            for m in models:
+                trows = [r for r in rows if r["table"] == t and "logs" in r and r.get("model", "rigid") == m]
+                if trows:
+                    out = args.plot if m == "rigid" else str(__import__("pathlib").Path(args.plot) / m)
+                    plots.append(str(js.plot_table(t, trows, out)))
     for r in rows:
         r.pop("logs", None)
     failed = [r for r in rows if "error" in r]

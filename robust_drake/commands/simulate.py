@@ -22,6 +22,10 @@ def register(sub):
     p.add_argument("--skip", type=non_negative(float, "--skip"), default=None,
                    help="ignore the first SKIP s in the metrics (default 0; 1 s for the circle as in JS section 10)")
     p.add_argument("--friction-compensation", action="store_true", help="add the fixed compensation of JS eqs. 89-90")
+    m = p.add_mutually_exclusive_group()
+    m.add_argument("--rigid", action="store_true", help="rigid arm (default)")
+    m.add_argument("--flexible", action="store_true",
+                   help="D2R2 only: two-mass drives, motor-side encoders, link-2 bending (BUILD_NOTES 'Flexible D2R2')")
     add_output_flags(p, plot="FILE")
     p.set_defaults(func=run)
 
@@ -33,11 +37,18 @@ def run(args) -> int:
         raise RobustDrakeError("--plot is empty; give a file or folder path")
     if not args.rate > 0:
         raise RobustDrakeError(f"--rate must be positive (got {args.rate})")
+    flex = None
+    if args.flexible:
+        if not str(args.robot).startswith("d2r2"):
+            raise RobustDrakeError("--flexible has parameters for the D2R2 only (use ClosedLoopConfig.flexibility for other arms)")
+        from robust_drake.systems.flexibility import d2r2_flexibility
+
+        flex = d2r2_flexibility(args.load)
     skip = args.skip if args.skip is not None else (1.0 if args.trajectory == "circle" else 0.0)
     cfg = ClosedLoopConfig(robot=args.robot, load=args.load, controller=args.controller,
                            trajectory=args.trajectory, observer=args.observer, rate=args.rate,
                            duration=args.duration, metrics_skip=skip,
-                           friction_compensation=args.friction_compensation)
+                           friction_compensation=args.friction_compensation, flexibility=flex)
     loop = build_closed_loop(cfg)
     res = loop.simulate()
     if args.plot:
@@ -46,7 +57,7 @@ def run(args) -> int:
         plot_tracking(res, args.plot, title=f"{args.controller} / {args.trajectory} / load {args.load}")
     out = res.to_dict()
     out.update(robot=args.robot, load=args.load, controller=args.controller, trajectory=args.trajectory,
-               rate=args.rate)
+               rate=args.rate, model="flexible" if args.flexible else "rigid")
     # the parameter uncertainty set behind a robust controller's bound (None for others)
     unc = getattr(loop.controller, "uncertainty", None)
     rho = getattr(loop.controller, "rho", None)
@@ -54,7 +65,7 @@ def run(args) -> int:
     if args.json:
         print_json(out)
     else:
-        print(f"{args.controller} on {args.robot} (load {args.load}), {args.trajectory}, {args.rate:g} Hz, "
+        print(f"{args.controller} on {args.robot}{' (flexible)' if args.flexible else ''} (load {args.load}), {args.trajectory}, {args.rate:g} Hz, "
               f"{res.sim_seconds:.2f} s simulated in {res.wall_seconds:.2f} s"
               + (f"  ** DIVERGED: {res.divergence_reason} **" if res.diverged else ""))
         print(format_table([[out[k] for k in METRIC_KEYS]],

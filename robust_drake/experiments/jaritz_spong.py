@@ -103,13 +103,17 @@ def _check_table(table) -> int:
 
 def run_spec(table: int, controller: str, *, duration: float | None = None, rate: float = 2500.0,
              observer: str = "averaging", observer_params: dict | None = None, logs: bool = False,
-             controller_params: dict | None = None) -> dict:
+             controller_params: dict | None = None, model: str = "rigid") -> dict:
     """The spec (a plain, picklable dict) of one run behind ``table``.
+
+    ``model``: ``"rigid"`` (the foundation's arm) or ``"flexible"`` (two-mass drives, motor-side
+    encoders and link-2 bending, :func:`robust_drake.systems.flexibility.d2r2_flexibility`).
 
     ``duration`` shortens the run (tests, notebooks); on the circle the criteria skip
     ``min(1 s, duration / 7)`` so a shortened circle still drops the initial transient.
     """
     table = _check_table(table)
+    _check_model(model)
     t = TABLES[table]
     traj = t["trajectory"]
     params = dict(CONTROLLER_PARAMS[traj].get(controller, {}))
@@ -120,7 +124,16 @@ def run_spec(table: int, controller: str, *, duration: float | None = None, rate
     return dict(table=table, controller=controller, load=t["load"],
                 friction_compensation=t["friction_compensation"], trajectory=traj,
                 controller_params=params, metrics_skip=skip, duration=duration, rate=float(rate),
-                observer=observer, observer_params=dict(observer_params or {}), logs=logs)
+                observer=observer, observer_params=dict(observer_params or {}), logs=logs, model=model)
+
+
+MODELS = ("rigid", "flexible")
+
+
+def _check_model(model) -> str:
+    if model not in MODELS:
+        raise RobustDrakeError(f"unknown arm model {model!r}; known: {', '.join(MODELS)}")
+    return model
 
 
 def table_runs(table: int, controllers=CONTROLLERS, **kw) -> list[dict]:
@@ -135,7 +148,15 @@ def config_for(spec: dict):
         controller_params=dict(spec["controller_params"]), trajectory=spec["trajectory"],
         rate=spec["rate"], observer=spec["observer"], observer_params=dict(spec["observer_params"]),
         friction_compensation=spec["friction_compensation"], duration=spec["duration"],
-        metrics_skip=spec["metrics_skip"])
+        metrics_skip=spec["metrics_skip"], flexibility=_flexibility(spec))
+
+
+def _flexibility(spec: dict):
+    if _check_model(spec.get("model", "rigid")) == "rigid":
+        return None
+    from robust_drake.systems.flexibility import d2r2_flexibility
+
+    return d2r2_flexibility(spec["load"])
 
 
 def run_one(spec: dict) -> dict:
@@ -144,6 +165,7 @@ def run_one(spec: dict) -> dict:
 
     res = simulate(config_for(spec))
     row = {k: spec[k] for k in ("table", "controller", "load", "friction_compensation", "trajectory", "rate", "observer")}
+    row["model"] = spec.get("model", "rigid")
     row.update({k: float(res.metrics[k]) for k in METRIC_KEYS})
     row.update(diverged=bool(res.diverged), divergence_reason=res.divergence_reason,
                wall_seconds=float(res.wall_seconds),
@@ -163,6 +185,7 @@ def run_one(spec: dict) -> dict:
 
 def _failed_row(spec, error):
     row = {k: spec[k] for k in ("table", "controller", "load", "friction_compensation", "trajectory", "rate", "observer")}
+    row["model"] = spec.get("model", "rigid")
     row.update({k: float("nan") for k in METRIC_KEYS})
     row.update(diverged=True, error=error)
     return row
@@ -172,7 +195,7 @@ def run_specs(specs: list[dict], workers: int | None = None, progress: bool = Tr
     """Run specs in parallel; a failed run is reported in its row (``error``), others complete."""
     from robust_drake.parallel import run_parallel
 
-    outcomes = run_parallel(run_one, specs, keys=[f"t{s['table']}/{s['controller']}/{s['rate']:g}" for s in specs],
+    outcomes = run_parallel(run_one, specs, keys=[f"t{s['table']}/{s['controller']}/{s['rate']:g}/{s.get('model', 'rigid')}" for s in specs],
                             workers=workers, desc=desc, progress=progress)
     rows = []
     for spec, o in zip(specs, outcomes):
@@ -205,6 +228,8 @@ def format_paper_table(table: int, rows: list[dict]) -> str:
     for r in rows:
         pub = r.get("published") or {}
         name = LABELS.get(r["controller"], r["controller"])
+        if r.get("model", "rigid") != "rigid":
+            name += f" [{r['model']}]"
         if "error" in r:
             body.append([name, *(["FAILED"] * 6)])
             continue
