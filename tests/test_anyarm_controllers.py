@@ -182,3 +182,48 @@ def test_bascetta_serial7_uses_a_configuration_dependent_mass_model():
         case_study_design("serial7", "cpt", {"amplitude_deg": 30.0}, mass_model="diag_q0")
     d = case_study_design("serial7", "cpt", {"amplitude_deg": 30.0})
     assert d["mass_model"] == "model" and d["bounds"].alpha < 0.5
+
+
+# ----------------------------------------------------------------- ZC and LG on other arms
+def test_zc_bounds_from_drake_match_the_d2r2_closed_form_and_bound_the_scara():
+    """With a zero-width box, the Drake-derived beta0, beta1 of JS eqs. 21-22 equal the closed form
+    of the D2R2 (zc_bounds on its eq. 14 parameters); on the IMI SCARA every box vertex's M(q)
+    and ||C(q, q')|| / ||q'|| (from Drake, random states) lie inside the computed bounds."""
+    from robust_drake.models import D2R2_THETA_UNLOADED
+    from robust_drake.systems.controllers.zenieh_corless import zc_bounds, zc_bounds_any_arm
+
+    q2 = np.linspace(-np.pi, np.pi, 721)
+    d = zc_bounds_any_arm("d2r2", rel_bound=0.0, configs=np.stack([np.zeros_like(q2), q2], axis=1))
+    b0, b1, _ = zc_bounds(D2R2_THETA_UNLOADED, D2R2_THETA_UNLOADED)
+    assert d["beta0"] == pytest.approx(b0, rel=2e-3) and d["beta1"] == pytest.approx(b1, rel=2e-3)
+    s = zc_bounds_any_arm("imi_scara", rel_bound=0.2)
+    plant = make_plant("imi_scara")
+    ctx = plant.CreateDefaultContext()
+    rng = np.random.default_rng(5)
+    for _ in range(30):
+        q, qd = rng.uniform(-np.pi, np.pi, 2), rng.normal(size=2)
+        plant.SetPositions(ctx, q)
+        w = np.linalg.eigvalsh(plant.CalcMassMatrix(ctx))
+        assert s["beta0"] <= w[0] + 1e-9 and w[-1] <= s["beta1"] + 1e-9
+        plant.SetVelocities(ctx, qd)
+        assert np.linalg.norm(plant.CalcBiasTerm(ctx)) <= s["beta2"] * np.dot(qd, qd) + 1e-9  # C(q, q') q'
+
+
+def test_zc_runs_on_a_horizontal_arm_and_refuses_gravity():
+    run = dict(trajectory="sine", rate=1000.0, duration=1.0, observer="exact")
+    zc = simulate(ClosedLoopConfig(robot="imi_scara", controller="zc", **run))
+    pd = simulate(ClosedLoopConfig(robot="imi_scara", controller="pd", **run))
+    assert not zc.diverged
+    rms = [float(np.sqrt(np.mean((r.q - r.q_d) ** 2))) for r in (zc, pd)]
+    assert rms[0] < 0.9 * rms[1], rms
+    for robot in ROBOTS_UNDER_TEST:
+        with pytest.raises(RobustDrakeError, match="gravity torques up to .* no gravity term"):
+            simulate(ClosedLoopConfig(robot=robot, controller="zc", **run))
+
+
+@pytest.mark.parametrize("robot,match", [("serial7", "n = 7.*Missing for n joints"),
+                                         ("siciliano_2link", "eq. 14's parameters")])
+@pytest.mark.parametrize("ctrl", ["lg", "lgplus"])
+def test_lg_says_what_is_missing(robot, match, ctrl):
+    with pytest.raises(RobustDrakeError, match=match):
+        simulate(ClosedLoopConfig(robot=robot, controller=ctrl, trajectory="sine", rate=1000.0, duration=0.01))
