@@ -57,6 +57,7 @@ TRAJECTORIES: dict[str, str] = {
 
 PLANT_EFFECTS: dict[str, str] = {
     "coulomb_viscous": "robust_drake.systems.friction:make_coulomb_viscous",
+    "sigmoid_friction": "robust_drake.systems.sigmoid_friction:make_sigmoid_friction",
 }
 
 _TABLES = {
