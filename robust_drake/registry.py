@@ -204,6 +204,8 @@ def make_block(kind: str, spec, ctx: BuildContext, params: dict):
                 f"{kind} must be a registry name, a pydrake System or a factory f(ctx) -> System (got {spec!r})")
         try:
             block = factory(ctx, **params)
+        except RobustDrakeError:
+            raise  # already a one-line user error naming the block
         except (TypeError, ValueError) as exc:
             msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
             raise RobustDrakeError(f"{kind} {block_label(spec)!r} with parameters {params!r}: {msg}") from None
