@@ -279,3 +279,23 @@ def test_sp1_on_the_panda_beats_pd_with_friction_encoder_and_saturation(panda_ru
     late = sp.t > 0.8
     assert e_sp.max() < 0.02 and e_sp[late].max() < 5e-3, (e_sp.max(), e_sp[late].max())
     assert np.sqrt(np.mean(e_sp ** 2)) < 0.1 * np.sqrt(np.mean(e_pd ** 2))
+
+
+def test_calafiore_takes_an_identified_ellipsoid_file(tmp_path):
+    """An ellipsoid JSON (theta0, P) on the URDF's base parameters is used as is: the controller's
+    theta0 and E E^T are the file's; giving both a file and P is refused."""
+    from robust_drake.identification.ellipsoid import Ellipsoid
+    from robust_drake.systems.controllers.calafiore_indri import make_calafiore
+
+    reg = InverseDynamicsRegressor.from_robot("siciliano_2link")
+    th = reg.base_parameters() * 1.05
+    A = np.random.default_rng(2).normal(size=(reg.p_base, reg.p_base))
+    P = A @ A.T + np.eye(reg.p_base)
+    path = tmp_path / "ell.json"
+    Ellipsoid(th, P).save(path)
+    c = make_calafiore(_ctx("siciliano_2link"), ellipsoid=str(path))
+    np.testing.assert_allclose(c.theta0, th)
+    np.testing.assert_allclose(c.E @ c.E.T, P, rtol=1e-10, atol=1e-10)
+    assert c.uncertainty["source"].startswith("identified")
+    with pytest.raises(RobustDrakeError, match="either 'ellipsoid' or 'theta0'/'P'"):
+        make_calafiore(_ctx("siciliano_2link"), ellipsoid=str(path), P=P)
