@@ -39,7 +39,7 @@ from robust_drake.divergence import STATE_LIMIT, TRACKING_ERROR_LIMIT, is_diverg
 from robust_drake.errors import RobustDrakeError
 from robust_drake.metrics import error_criteria, torque_statistics
 from robust_drake.models import ArmSpec, ROBOTS, add_arm, get_arm, set_d2r2_theta
-from robust_drake.registry import BuildContext, resolve
+from robust_drake.registry import BuildContext, block_label, is_block_spec, make_block
 from robust_drake.systems.friction import (
     D2R2_COULOMB,
     D2R2_K_HAT,
@@ -87,6 +87,11 @@ _DEFAULT = object()
 class ClosedLoopConfig:
     """Everything that defines one closed loop (serialisable except ``effects`` callables).
 
+    ``controller`` / ``observer``: a registry name, a pydrake LeafSystem instance (one loop
+    per instance) or a factory ``f(ctx, **params) -> LeafSystem`` (``ctx`` a
+    :class:`~robust_drake.registry.BuildContext`); ports as in BUILD_NOTES "Architecture
+    contract", checked by :func:`robust_drake.registry.check_ports` (the error names the
+    missing port). ``to_dict`` records a custom block as ``"custom:<name>"``.
     ``plant_friction``: ``{"coulomb": [...], "viscous": [...]}`` for the plant-side
     Coulomb + viscous block, None for a frictionless plant; the default is the D2R2 values
     for the D2R2 and None for other robots. ``friction_compensation`` adds the fixed JS
@@ -154,6 +159,7 @@ class ClosedLoopConfig:
 
     def to_dict(self) -> dict:
         d = {k: getattr(self, k) for k in self.__dataclass_fields__ if k not in ("effects", "plant_setup", "feedforward")}
+        d["controller"], d["observer"] = block_label(self.controller), block_label(self.observer)
         if self.flexibility is not None and hasattr(self.flexibility, "to_dict"):
             d["flexibility"] = self.flexibility.to_dict()
         d["effects"] = [e if isinstance(e, (list, tuple)) else getattr(e, "__name__", repr(e)) for e in self.effects]
@@ -185,10 +191,14 @@ def _check_config(c: "ClosedLoopConfig") -> None:
     """The checks of :meth:`ClosedLoopConfig.validate` (one place for every field)."""
     if not isinstance(c.robot, (str, os.PathLike)) or not str(c.robot):
         raise RobustDrakeError(f"robot must be a robot name or a URDF path (got {c.robot!r})")
-    for name in ("load", "controller", "trajectory", "observer"):
+    for name in ("load", "trajectory"):
         v = getattr(c, name)
         if not isinstance(v, str) or not v:
             raise RobustDrakeError(f"{name} must be a name (a non-empty string), got {v!r}")
+    for name in ("controller", "observer"):  # a registry name, a LeafSystem or a factory f(ctx)
+        if not is_block_spec(getattr(c, name)):
+            raise RobustDrakeError(f"{name} must be a registry name, a pydrake LeafSystem or a factory "
+                                   f"f(ctx) -> LeafSystem (got {getattr(c, name)!r})")
     for name in ("controller_params", "trajectory_params", "observer_params", "compensation_params"):
         v = getattr(c, name)
         if not isinstance(v, dict) or not all(isinstance(k, str) for k in v):
@@ -229,12 +239,7 @@ def _check_config(c: "ClosedLoopConfig") -> None:
 def _make_block(kind: str, name: str, ctx, params: dict):
     """``resolve(kind, name)(ctx, **params)``, with a wrong parameter name or value reported
     as a one-line user error naming the block."""
-    factory = resolve(kind, name)
-    try:
-        return factory(ctx, **dict(params))
-    except (TypeError, ValueError) as exc:
-        msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise RobustDrakeError(f"{kind} {name!r} with parameters {dict(params)!r}: {msg}") from None
+    return make_block(kind, name, ctx, params)  # names, LeafSystem instances, factories; ports checked
 
 
 @dataclass
@@ -353,7 +358,7 @@ class ClosedLoop:
         builder.Connect(obs.GetOutputPort("v_error"), ctrl.GetInputPort("v_error"))
         for f in c.feedforward:
             if not hasattr(ctrl, "add_feedforward"):
-                raise RobustDrakeError(f"controller {c.controller!r} does not accept feedforward terms")
+                raise RobustDrakeError(f"controller {block_label(c.controller)!r} does not accept feedforward terms")
             ctrl.add_feedforward(f)
         u = ctrl.GetOutputPort("u")
         self.compensation = None
@@ -448,7 +453,7 @@ class ClosedLoop:
     def _finish(self):
         if self.diagram is None:
             self.diagram = self.builder.Build()
-            self.diagram.set_name(f"closed_loop_{self.config.robot}_{self.config.controller}")
+            self.diagram.set_name(f"closed_loop_{self.config.robot}_{block_label(self.config.controller)}")
 
     def simulate(self, duration: float | None = None, initial_q=None) -> SimulationResult:
         """Run from rest at q_d(0) (or ``initial_q``) for ``duration`` s (default: the reference's)."""

@@ -170,6 +170,18 @@ ROBOTS: dict[str, ArmSpec] = {
         loads={"none": "serial7.urdf"},
         description="7-link serial test arm (iiwa-like axes, gravity, geared joints) for regressor speed",
     ),
+    "panda": ArmSpec(
+        name="panda",
+        urdf="panda.urdf",
+        n=7,
+        link_lengths=(0.333, 0.0, 0.316, 0.0825, 0.384, 0.0, 0.088),  # joint-to-joint offsets (modified DH)
+        gravity=True,
+        plane=None,
+        loads={"none": "panda.urdf"},
+        description=("Franka Emika Panda (no hand): link inertias of Gaz et al., IEEE RA-L 2019; limits from "
+                     "Franka's interface specifications"),
+        torque_limits=(87.0, 87.0, 87.0, 87.0, 12.0, 12.0, 12.0),
+    ),
 }
 
 

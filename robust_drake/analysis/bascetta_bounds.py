@@ -19,10 +19,18 @@ quadratic parts are recovered exactly by polarisation, so only the sup over u is
     alpha_0 = G + L V_M + c V_M^2,   alpha_1 = L + 2 c V_M,   alpha_2 = c.
 
 Configurations: ``region="trajectory"`` samples a tube of radius ``tube`` (rad, per joint, a
-3^n grid of offsets) around q_d(t) on ``n_time`` instants; ``region="workspace"`` a regular grid
-over [-pi, pi]^n. Unit directions u: ``n_dir`` angles on the half circle (n = 2) or random unit
-vectors (n > 2), since c~ is even in u. The sup over the trajectory region is valid while the
-tracking error stays in the tube, which the case study checks after simulating.
+3^n grid of offsets while 3^n <= ``max_offsets`` (27); for more joints the centre, the 2n axis
+points +-tube e_i and ``n_vertices`` (16) random tube vertices, fixed seed) around q_d(t) on
+``n_time`` instants; ``region="workspace"`` a regular grid over [-pi, pi]^n. Unit directions u:
+``n_dir`` angles on the half circle (n = 2, with a Bernstein correction); for n > 2 the sup over
+||u|| = 1 of ||sum_jk Gam[:, j, k] u_j u_k|| is bounded above without sampling by
+sqrt(sum_i ||Gam_i||_2^2) (each component is a quadratic form u^T Gam_i u). The sup over the
+trajectory region is valid while the tracking error stays in the tube, which the case study checks
+after simulating.
+
+``M_hat`` may be a constant matrix (the case study's diag(M(0))) or a function ``M_hat(q)`` (BR
+eq. 2 allows M_hat(q): for arms with strong inertial coupling a constant diagonal M_hat gives
+alpha >= 1, e.g. 1.21 on serial7 along the sine, and eq. 13 has no solution).
 
 Coefficients: Case A (eq. 13), with ||K|| = ||[K_P K_D]||_2, the norm that bounds
 ||K_P q~ + K_D q~dot|| / ||e|| (the paper writes ||diag(K_P, K_D)||, which is slightly smaller):
@@ -63,15 +71,24 @@ class UncertaintyBounds:
         return asdict(self)
 
 
-def sample_configurations(region: str, n: int, q_d=None, tube: float = 0.1, grid: int = 73):
+def sample_configurations(region: str, n: int, q_d=None, tube: float = 0.1, grid: int = 73,
+                          max_offsets: int = 27, n_vertices: int = 16, seed: int = 0):
     """Configurations to take sups over (see module docstring)."""
     if region == "workspace":
+        if grid ** n > 10 ** 6:
+            raise RobustDrakeError(f"region='workspace' would grid {grid}^{n} configurations; use "
+                                   "region='trajectory' for arms with more than a few joints")
         axis = np.linspace(-np.pi, np.pi, grid)
         return np.array(list(itertools.product(*([axis] * n))))
     if region == "trajectory":
         if q_d is None:
             raise RobustDrakeError("region='trajectory' needs the sampled q_d (K x n)")
-        offsets = np.array(list(itertools.product(*([[-tube, 0.0, tube]] * n))))
+        if 3 ** n <= max_offsets:
+            offsets = np.array(list(itertools.product(*([[-tube, 0.0, tube]] * n))))
+        else:
+            eye = np.eye(n)
+            verts = tube * np.random.default_rng(seed).choice([-1.0, 1.0], size=(n_vertices, n))
+            offsets = np.vstack([np.zeros((1, n)), tube * eye, -tube * eye, verts])
         return (np.asarray(q_d)[:, None, :] + offsets[None, :, :]).reshape(-1, n)
     raise RobustDrakeError(f"unknown region {region!r}; use 'trajectory' or 'workspace'")
 
@@ -116,10 +133,10 @@ def compute_bounds(M_fn, n_fn, n_hat_fn, M_hat, configs, qd_d, qdd_d, n_dir: int
     The linear and quadratic parts in qd are recovered exactly by polarisation (7 evaluations per
     configuration for n = 2); the sup over unit directions is then taken on ``n_dir`` samples.
     """
-    M_hat = np.asarray(M_hat, float)
-    n = M_hat.shape[0]
-    U = unit_directions(n, n_dir)
-    UU = np.einsum("kj,kl->kjl", U, U)
+    M_hat_fn = M_hat if callable(M_hat) else (lambda q, _M=np.asarray(M_hat, float): _M)
+    n = np.asarray(configs).shape[1]
+    U = unit_directions(n, n_dir) if n <= 2 else None
+    UU = np.einsum("kj,kl->kjl", U, U) if U is not None else None
 
     def f(q, v):
         return n_hat_fn(q, v) - n_fn(q, v)
@@ -129,14 +146,17 @@ def compute_bounds(M_fn, n_fn, n_hat_fn, M_hat, configs, qd_d, qdd_d, n_dir: int
     G = L = c = 0.0
     for q in configs:
         Minv = np.linalg.inv(M_fn(q))
-        alpha = max(alpha, np.linalg.norm(np.eye(n) - Minv @ M_hat, 2))
+        alpha = max(alpha, np.linalg.norm(np.eye(n) - Minv @ M_hat_fn(q), 2))
         s = np.linalg.norm(Minv, 2)
         Bm, BM = min(Bm, s), max(BM, s)
         g0, Lmat, Gam = _poly_parts(f, q, n)
         G = max(G, np.linalg.norm(g0))
         L = max(L, np.linalg.norm(Lmat, 2))
-        quad = np.einsum("ijk,mjk->mi", Gam, UU)
-        c = max(c, float(np.max(np.linalg.norm(quad, axis=1))))
+        if UU is not None:
+            quad = np.einsum("ijk,mjk->mi", Gam, UU)
+            c = max(c, float(np.max(np.linalg.norm(quad, axis=1))))
+        else:  # sup_u ||(u^T Gam_i u)_i|| <= sqrt(sum_i ||Gam_i||_2^2), no sampling of u
+            c = max(c, float(np.sqrt(np.sum(np.linalg.norm(Gam, 2, axis=(1, 2)) ** 2))))
     if n == 2:
         # ||Q(u(phi))||^2 is a trig polynomial of degree 4, so (Bernstein) its second derivative is at
         # most 16 max; a sample within h = pi / (2 n_dir) of the peak is >= max (1 - 8 h^2).
@@ -144,7 +164,8 @@ def compute_bounds(M_fn, n_fn, n_hat_fn, M_hat, configs, qd_d, qdd_d, n_dir: int
         c /= np.sqrt(1.0 - 8.0 * h * h)
     if alpha >= 1.0:
         raise RobustDrakeError(
-            f"alpha = sup ||I - M^-1 M_hat|| = {alpha:.4g} >= 1: BR eq. 13 has no solution; improve M_hat"
+            f"alpha = sup ||I - M^-1 M_hat|| = {alpha:.4g} >= 1: BR eq. 13 has no solution; improve M_hat "
+            "(controller_params mass_model='model' uses M_hat(q) of the controller's model)"
         )
     V_M = float(np.max(np.linalg.norm(np.asarray(qd_d), axis=1)))
     Q_M = float(np.max(np.linalg.norm(np.asarray(qdd_d), axis=1)))

@@ -12,14 +12,24 @@ eq. 20. In e ordering, z_i = Pi[1, 0] q~_i + Pi[1, 1] q~dot_i.
 
 Boundary layer: ``eps_z = boundary * ||B^T P||_2`` so the layer is ``boundary`` wide in error
 units (rad, rad/s) for both cases (their P differ in scale); inside it w = rho z / eps_z is a
-continuous high-gain feedback, which keeps the 2500 Hz loop from chattering. Default 0.01.
+continuous high-gain feedback, which keeps the 2500 Hz loop from chattering. Default
+``max(0.01, beta_0 T)`` (:func:`default_boundary`): 0.01 in the case study.
 
 Model used by the controller (the case study, BR section V):
-* M_hat = diag(M(q = 0)) of the *nominal* model (the plant itself);
+* M_hat = diag(M(q = 0)) of the *nominal* model (the plant itself) (``mass_model="diag_q0"``);
 * n_hat(q, qd) = C qd + g of a *perturbed* model: the URDF with the masses (and, with them, the
   rotational inertias: SetMass keeps the unit inertia) of the bodies in ``perturbation`` scaled;
-  default ``{"link1": 1.2, "link2": 1.2}`` (both links 20 % heavier, 60 kg instead of 50 kg).
+  default: every body named ``link<k>`` 20 % heavier (for the Siciliano arm ``{"link1": 1.2,
+  "link2": 1.2}``, 60 kg instead of 50 kg).
   Evaluated with Drake (CalcBiasTerm - CalcGravityGeneralizedForces) on a cached context.
+
+Any other URDF arm (n joints): the same law, with ``mass_model="model"`` by default, i.e.
+M_hat(q) = the perturbed model's full mass matrix (BR eq. 2 allows M_hat(q); a constant diagonal
+M_hat gives alpha >= 1 on serial7, so eq. 13 would have no solution). The bounds of eqs. 9-11
+(alpha, B_M, Q_M, alpha_0..2) are sampled over the tube around the loop's own reference with
+the Drake plant (:func:`robust_drake.analysis.bascetta_bounds.compute_bounds`); Case A's P solves
+the 2n x 2n Lyapunov equation, Case B's is the per-joint Riccati block Pi repeated n times
+(Lemma 4; BR section IV needs K_P = omega_n^2 I, K_D = 2 zeta omega_n I).
 
 Extra outputs: ``w`` (n, the robust term, held) and ``rho`` (1, held), for logging.
 """
@@ -29,11 +39,27 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from pydrake.multibody.tree import BodyIndex
 
 from robust_drake.errors import RobustDrakeError
 from robust_drake.systems.controllers.base import DiscreteController, diag_gain
 
 DEFAULT_PERTURBATION = {"link1": 1.2, "link2": 1.2}
+#: The case-study arm keeps BR section V's constant M_hat = diag(M(0)); other arms use M_hat(q).
+CASE_STUDY_ROBOT = "siciliano_2link"
+
+
+def default_perturbation(robot: str, load: str = "none", factor: float = 1.2) -> dict:
+    """Every body named ``link<k>`` with positive mass scaled by ``factor`` (the controller's model)."""
+    from robust_drake.models import make_plant
+
+    plant = make_plant(robot, load)
+    out = {}
+    for i in range(plant.num_bodies()):
+        b = plant.get_body(BodyIndex(i))
+        if b.name().startswith("link") and b.name()[4:].isdigit() and b.default_mass() > 0:
+            out[b.name()] = factor
+    return out or dict(DEFAULT_PERTURBATION)
 
 
 # --------------------------------------------------------------------------- models
@@ -103,7 +129,9 @@ class BascettaRoccoController(DiscreteController):
         super().__init__(n, period, name)
         self.kp = diag_gain(K_P, n, "K_P")
         self.kd = diag_gain(K_D, n, "K_D")
-        self.M_hat = np.asarray(M_hat, float).reshape(n, n)
+        # a constant matrix, or a function M_hat(q) (BR eq. 2), e.g. ModelDynamics.M
+        self.M_hat_fn = M_hat if callable(M_hat) else None
+        self.M_hat = None if callable(M_hat) else np.asarray(M_hat, float).reshape(n, n)
         self.n_hat = n_hat
         self.BtP = np.asarray(BtP, float).reshape(n, 2 * n)
         self.beta = [float(b) for b in beta]
@@ -120,7 +148,8 @@ class BascettaRoccoController(DiscreteController):
         self.DeclareStateOutputPort("rho", self._rho_index)
 
     def compute(self, t, q_d, qd_d, qdd_d, q, v, v_error):
-        return inverse_dynamics_law(q_d, qd_d, qdd_d, q, v, self.kp, self.kd, self.M_hat,
+        M_hat = self.M_hat_fn(q) if self.M_hat_fn is not None else self.M_hat
+        return inverse_dynamics_law(q_d, qd_d, qdd_d, q, v, self.kp, self.kd, M_hat,
                                     self.n_hat(q, v), self.BtP, self.beta, self.eps_z)
 
     def _update(self, context, discrete_state):
@@ -139,12 +168,15 @@ _BOUNDS_CACHE: dict = {}
 
 
 def case_study_design(robot="siciliano_2link", trajectory="line", trajectory_params=None, K_P=25.0,
-                      K_D=5.0, perturbation=None, region="trajectory", tube=0.1, n_time=120,
-                      Q=None, delta=None, gamma=None, margin=1.1, load="none"):
+                      K_D=5.0, perturbation=None, region="trajectory", tube=0.1, n_time=None,
+                      Q=None, delta=None, gamma=None, margin=1.1, load="none", mass_model=None):
     """Everything Cases A and B need (cached): M_hat, the bounds, beta (eqs. 13, 20), P (A and B).
 
     Bounds are taken over ``region`` ("trajectory": a +-``tube`` rad grid around q_d at ``n_time``
     instants; "workspace": all of [-pi, pi]^n) and the reference sampled every 1 ms.
+    ``mass_model``: "diag_q0" (M_hat = diag(M(0)) of the nominal model, BR section V; default for
+    the case-study arm) or "model" (M_hat(q) = the perturbed model's mass matrix; default for
+    every other arm). ``n_time`` defaults to 120 instants for n <= 3 joints, 40 above.
     """
     from robust_drake.analysis.bascetta_bounds import (
         beta_case_a,
@@ -157,30 +189,37 @@ def case_study_design(robot="siciliano_2link", trajectory="line", trajectory_par
     from robust_drake.models import get_arm
     from robust_drake.trajectories import make_reference
 
-    perturbation = DEFAULT_PERTURBATION if perturbation is None else dict(perturbation)
+    perturbation = default_perturbation(robot, load) if perturbation is None else dict(perturbation)
     trajectory_params = dict(trajectory_params or {})
+    if mass_model is None:
+        mass_model = "diag_q0" if robot == CASE_STUDY_ROBOT else "model"
+    if mass_model not in ("diag_q0", "model"):
+        raise RobustDrakeError(f"mass_model must be 'diag_q0' or 'model' (got {mass_model!r})")
     key = repr((robot, load, trajectory, sorted(trajectory_params.items()), np.asarray(K_P).tolist(),
                 np.asarray(K_D).tolist(), sorted(perturbation.items()), region, tube, n_time,
-                None if Q is None else np.asarray(Q).tolist(), delta, gamma, margin))
+                None if Q is None else np.asarray(Q).tolist(), delta, gamma, margin, mass_model))
     if key in _DESIGN_CACHE:
         return _DESIGN_CACHE[key]
     bkey = repr((robot, load, trajectory, sorted(trajectory_params.items()), sorted(perturbation.items()),
-                 region, tube, n_time))
+                 region, tube, n_time, mass_model))
     if bkey not in _BOUNDS_CACHE:
         arm = get_arm(robot)
         ref = make_reference(arm, trajectory, **trajectory_params)
         nominal = ModelDynamics(robot, None, load)
         perturbed = ModelDynamics(robot, perturbation, load)
         n = nominal.n
-        M_hat = np.diag(np.diag(nominal.M(np.zeros(n))))
+        if mass_model == "diag_q0":
+            M_hat = np.diag(np.diag(nominal.M(np.zeros(n))))
+        else:
+            M_hat = perturbed.M
+        nt = n_time if n_time is not None else (120 if n <= 3 else 40)
         t = np.arange(0.0, ref.duration + 1e-12, 1e-3)
         q_d, qd_d, qdd_d = ref(t)
-        idx = np.linspace(0, len(t) - 1, n_time).round().astype(int)
+        idx = np.linspace(0, len(t) - 1, nt).round().astype(int)
         configs = sample_configurations(region, n, q_d=q_d[idx], tube=tube)
         _BOUNDS_CACHE[bkey] = (M_hat, compute_bounds(nominal.M, nominal.n_term, perturbed.n_term, M_hat, configs,
-                                                     qd_d, qdd_d, region=region))
-    M_hat, bounds = _BOUNDS_CACHE[bkey]
-    n = M_hat.shape[0]
+                                                     qd_d, qdd_d, region=region), n)
+    M_hat, bounds, n = _BOUNDS_CACHE[bkey]
     kp = diag_gain(K_P, n, "K_P")
     kd = diag_gain(K_D, n, "K_D")
     lyap = lyapunov_design(np.diag(kp), np.diag(kd), Q)
@@ -189,21 +228,46 @@ def case_study_design(robot="siciliano_2link", trajectory="line", trajectory_par
         "M_hat": M_hat, "bounds": bounds, "lyapunov": lyap, "riccati": ric,
         "beta_A": beta_case_a(bounds, np.diag(kp), np.diag(kd)), "beta_B": beta_case_b(bounds),
         "perturbation": perturbation, "K_P": kp, "K_D": kd, "region": region, "tube": tube,
+        "mass_model": mass_model,
     }
     _DESIGN_CACHE[key] = out
     return out
 
 
-def _make(ctx, case, K_P=25.0, K_D=5.0, perturbation=None, boundary=0.01, region="trajectory",
-          tube=0.1, Q=None, delta=None, gamma=None, beta=None):
+#: Smallest boundary layer [error units] (the case study's value).
+DEFAULT_BOUNDARY = 0.01
+
+
+def default_boundary(beta0: float, period: float) -> float:
+    """Boundary layer width: inside it w = rho z / eps_z is a feedback of gain rho / boundary on
+    the (normalised) error; capping that gain at 1/T keeps the sampled loop from chattering
+    (measured: serial7 Case A at 1 kHz, rho ~ 41, boundary 0.01 -> gain 4100 1/s, error 9e-3 rad
+    chattering vs 2e-4 for Case B). boundary = max(0.01, beta_0 T); the case study at 2500 Hz
+    (beta_0 ~ 3.7) keeps 0.01."""
+    return max(DEFAULT_BOUNDARY, float(beta0) * float(period))
+
+
+def _make(ctx, case, K_P=25.0, K_D=5.0, perturbation=None, boundary=None, region="trajectory",
+          tube=0.1, Q=None, delta=None, gamma=None, beta=None, mass_model=None, n_time=None):
     c = ctx.config
     d = case_study_design(ctx.robot, c.trajectory, c.trajectory_params, K_P, K_D, perturbation, region, tube,
-                          Q=Q, delta=delta, gamma=gamma, load=ctx.load)
+                          n_time=n_time, Q=Q, delta=delta, gamma=gamma, load=ctx.load, mass_model=mass_model)
     BtP = d["lyapunov"].BtP if case == "A" else d["riccati"].BtP
     beta = beta if beta is not None else (d["beta_A"] if case == "A" else d["beta_B"])
+    if boundary is None:
+        boundary = default_boundary(beta[0], ctx.period)
     n_hat = ModelDynamics(ctx.robot, d["perturbation"], ctx.load)  # own context per controller
-    return BascettaRoccoController(ctx.n, ctx.period, d["K_P"], d["K_D"], d["M_hat"], n_hat, BtP, beta,
+    M_hat = n_hat.M if d["mass_model"] == "model" else d["M_hat"]
+    ctrl = BascettaRoccoController(ctx.n, ctx.period, d["K_P"], d["K_D"], M_hat, n_hat, BtP, beta,
                                    boundary, name=f"bascetta_{case.lower()}", design=d)
+    b = d["bounds"]
+    ctrl.uncertainty = {
+        "kind": "bascetta_bounds", "source": f"sampled over the {d['region']} region (tube {d['tube']} rad) "
+        "with the Drake plant; controller model = URDF with masses scaled by 'perturbation'",
+        "perturbation": d["perturbation"], "mass_model": d["mass_model"], "bounds": b.to_dict(),
+        "beta": [float(x) for x in beta], "case": case, "boundary": float(boundary)}
+    ctrl.rho = float(beta[0])  # rho(||e||) at e = 0; the full polynomial is in uncertainty["beta"]
+    return ctrl
 
 
 def make_bascetta_a(ctx, **params):

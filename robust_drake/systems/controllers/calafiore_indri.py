@@ -15,6 +15,15 @@ where E^T E = P describes the confidence ellipsoid E(P, theta0) (eq. 10). With P
 D(q, qd, qd, qdd) is the identification regressor (for the IMI SCARA, CI section 5). Friction
 columns: Coulomb on sgn(qd) (the velocity estimate), viscous on v (the difference
 sigma_v (qd - v) = sigma_v r only adds damping for sigma_v > 0).
+
+Any other URDF arm (n joints): D is the Drake-derived Slotine-Li regressor on the base parameters
+(:meth:`robust_drake.regressor.InverseDynamicsRegressor.slotine_li_single`, gravity included;
+eq. 6's D(q, qd, v, a) theta = M a + C v + g), theta0 the URDF's base parameters unless given, and
+the ellipsoid E(P, theta0) (eq. 10) on the base parameters comes from ``P``, an identified
+``ellipsoid`` (JSON path or :class:`~robust_drake.identification.ellipsoid.Ellipsoid`, same base
+parameterisation), or, by default, the smallest axis-aligned ellipsoid containing the box
+|theta_i - theta0_i| <= b_i of SP1/SP2 (``rel_bound``, ``abs_bound``): P = k diag(b^2), k the
+number of b_i > 0 (every box vertex lies on its boundary). See :func:`ellipsoid_design`.
 """
 
 from __future__ import annotations
@@ -98,9 +107,13 @@ class CalafioreIndriController(DiscreteController):
         robust: False gives the nominal law (eq. 6) alone.
     """
 
-    def __init__(self, n, period, regressor, theta0, K, Lambda, E=None, P=None, epsilon=1.0, robust=True):
+    def __init__(self, n, period, regressor, theta0, K, Lambda, E=None, P=None, epsilon=1.0, robust=True,
+                 list_inputs=True):
         super().__init__(n, period, name="CalafioreIndriController" if robust else "CalafioreIndriNominal")
         self.regressor = regressor
+        self.list_inputs = bool(list_inputs)  # scalar-math regressors take lists; Drake's takes arrays
+        self.uncertainty = None  # the ellipsoid (JSON-able), set by the factories
+        self.rho = None  # max ||theta~||_2 over the ellipsoid = sqrt(lambda_max(P))
         self.theta0 = np.asarray(theta0, dtype=float)
         m = self.theta0.size
         if E is None:
@@ -119,8 +132,109 @@ class CalafioreIndriController(DiscreteController):
 
     def compute(self, t, q_d, qd_d, qdd_d, q, v, v_error):
         _, r, vref, a = calafiore_error_terms(q_d, qd_d, qdd_d, q, v_error, self.Lambda)
-        D = np.asarray(self.regressor(q.tolist(), v.tolist(), vref.tolist(), a.tolist()), dtype=float)
+        if self.list_inputs:
+            q, v, vref, a = q.tolist(), v.tolist(), vref.tolist(), a.tolist()
+        D = np.asarray(self.regressor(q, v, vref, a), dtype=float)
         return calafiore_torque(D, self.theta0, self.E, self.K, r, self.epsilon, self.robust)
+
+
+def ellipsoid_from_box(theta0, rel_bound: float, abs_bound: float = 0.0) -> np.ndarray:
+    """P of the smallest axis-aligned ellipsoid {theta0 + E z, ||z|| <= 1} (CI eq. 10) containing
+    the box |theta_i - theta0_i| <= b_i = rel_bound |theta0_i| + abs_bound: P = k diag(b^2),
+    k = #{b_i > 0} (each vertex has sum_i (theta~_i / b_i)^2 / k = 1)."""
+    if not (np.isfinite(rel_bound) and rel_bound >= 0 and np.isfinite(abs_bound) and abs_bound >= 0):
+        raise RobustDrakeError(f"rel_bound and abs_bound must be finite and >= 0 (got {rel_bound}, {abs_bound})")
+    b = rel_bound * np.abs(np.asarray(theta0, dtype=float)) + abs_bound
+    return max(int(np.count_nonzero(b > 0)), 1) * np.diag(b ** 2)
+
+
+def ellipsoid_epsilon(D_samples, E, K) -> float:
+    """Boundary layer for arms without a published one: inside the layer eq. 15 adds the gain
+    D P D^T / epsilon on r (P = E E^T); epsilon = max_k ||D_k E||_2^2 / min(K) over the reference
+    samples D_k = D(q_d, qd_d, qd_d, qdd_d) caps it at min(K) (with P = rho^2 I this is
+    rho times SP1's rule in :func:`robust_drake.systems.controllers.spong.default_epsilon`)."""
+    DE = np.asarray(D_samples, dtype=float) @ np.asarray(E, dtype=float)
+    g = float(np.linalg.norm(DE, ord=2, axis=(1, 2)).max()) ** 2 if DE.size else 0.0
+    return g / float(np.min(K)) if g > 0 else 1.0
+
+
+def ellipsoid_design(ctx, p: dict):
+    """(regressor, theta0, E, uncertainty) for an n-joint URDF arm (pops the keys it uses from p):
+    Drake's Slotine-Li regressor on the base parameters, theta0 (param or the URDF's), and the
+    ellipsoid from ``P``, ``ellipsoid`` (JSON path / Ellipsoid) or the box of ``rel_bound`` (default
+    0.2) / ``abs_bound`` (see the module docstring)."""
+    from robust_drake.regressor import InverseDynamicsRegressor
+    from robust_drake.systems.controllers.spong import DEFAULT_REL_BOUND
+
+    reg = InverseDynamicsRegressor.from_robot(ctx.robot, ctx.load)
+    if reg.n != ctx.n:
+        raise RobustDrakeError(f"regressor of {ctx.robot!r} has {reg.n} joints, the loop has {ctx.n}")
+    box = {k: float(p.pop(k)) for k in ("rel_bound", "abs_bound") if k in p}
+    ell = p.pop("ellipsoid", None)
+    if ell is not None:
+        from robust_drake.identification.ellipsoid import Ellipsoid
+
+        ell = ell if isinstance(ell, Ellipsoid) else Ellipsoid.load(ell)
+        theta0, P, source = ell.theta0, ell.P, "identified confidence ellipsoid (CI eq. 10)"
+        if "theta0" in p or "P" in p:
+            raise RobustDrakeError("calafiore: give either 'ellipsoid' or 'theta0'/'P', not both")
+    else:
+        theta0 = np.asarray(p.pop("theta0", reg.base_parameters()), dtype=float)
+        if "P" in p:
+            P, source = np.asarray(p.pop("P"), dtype=float), "user P"
+        else:
+            rel = box.get("rel_bound", DEFAULT_REL_BOUND)
+            P = ellipsoid_from_box(theta0, rel, box.get("abs_bound", 0.0))
+            source = "smallest axis-aligned ellipsoid containing the box +- rel_bound |theta0_i| + abs_bound"
+            box = {"rel_bound": rel, "abs_bound": box.get("abs_bound", 0.0)}
+    m = reg.p_base
+    if theta0.shape != (m,) or P.shape != (m, m):
+        raise RobustDrakeError(
+            f"calafiore on {ctx.robot!r}: theta0 must have the {m} base parameters "
+            f"(InverseDynamicsRegressor.base_names) and P be {m}x{m}; got {theta0.shape} and {P.shape}")
+    E = sqrtm_psd(P)
+    unc = {"kind": "ellipsoid", "source": source, "parameters": list(reg.base_names),
+           "theta0": theta0.tolist(), "P": P.tolist(), **box,
+           "rho": float(np.sqrt(max(np.linalg.eigvalsh(0.5 * (P + P.T))[-1], 0.0)))}
+    return reg, theta0, E, unc
+
+
+def _make_any_arm(ctx, robust, p):
+    from robust_drake.systems.controllers.spong import default_gains
+
+    reg, theta0, E, unc = ellipsoid_design(ctx, p)
+    K0, L0 = default_gains(ctx)
+    p.setdefault("K", K0)
+    p.setdefault("Lambda", L0)
+    if not robust:
+        E = np.zeros_like(E)
+    if "epsilon" not in p:
+        D = _reference_regressors(ctx, reg)
+        Kv = np.broadcast_to(np.asarray(p["K"], dtype=float), (ctx.n,))
+        p["epsilon"] = ellipsoid_epsilon(D, E, Kv) if robust else 1.0
+        unc["epsilon_rule"] = {"epsilon": p["epsilon"], "samples": int(len(D))}
+    try:
+        c = CalafioreIndriController(ctx.n, ctx.period, reg.slotine_li_single, theta0, E=E, robust=robust,
+                                     list_inputs=False, **p)
+    except (TypeError, ValueError) as exc:
+        raise RobustDrakeError(f"calafiore: {exc}") from None
+    c.uncertainty = unc
+    c.rho = unc["rho"] if robust else None
+    return c
+
+
+def _reference_regressors(ctx, reg, samples: int = 200) -> np.ndarray:
+    """D(q_d, qd_d, qd_d, qdd_d) at ``samples`` instants of the loop's reference (K, n, m);
+    empty if the loop has no reference."""
+    from robust_drake.trajectories import make_reference
+
+    cfg = ctx.config
+    if cfg is None or not hasattr(cfg, "trajectory"):
+        return np.zeros((0, ctx.n, reg.p_base))
+    ref = make_reference(ctx.arm, cfg.trajectory, **dict(getattr(cfg, "trajectory_params", {}) or {}))
+    duration = float(getattr(cfg, "duration", None) or ref.duration)
+    q, qd, qdd = (np.asarray(x, float).reshape(-1, ctx.n) for x in ref(np.linspace(0.0, duration, samples)))
+    return reg.evaluate(q, qd, qdd)
 
 
 def _make(ctx, robust, params):
@@ -128,9 +242,7 @@ def _make(ctx, robust, params):
     reg = p.pop("regressor", None)
     if reg is None:
         if ctx.robot != "imi_scara":
-            raise RobustDrakeError(
-                f"calafiore needs controller_params={{'regressor': D(q, qd, v, a), 'theta0': ..., 'P': ...}} "
-                f"for robot {ctx.robot!r} (built in for imi_scara only)")
+            return _make_any_arm(ctx, robust, p)
         reg = imi_scara_control_regressor
     if "theta0" not in p:
         from robust_drake.regressor import IMI_P, IMI_THETA0
@@ -144,7 +256,12 @@ def _make(ctx, robust, params):
         p.pop("E", None)
         p.pop("P", None)
         p["E"] = np.zeros((len(p["theta0"]), len(p["theta0"])))
-    return CalafioreIndriController(ctx.n, ctx.period, reg, robust=robust, **p)
+    c = CalafioreIndriController(ctx.n, ctx.period, reg, robust=robust, **p)
+    if "theta0" in params or ctx.robot == "imi_scara":
+        c.uncertainty = {"kind": "ellipsoid", "source": "CI section 5.1" if "P" not in params else "user P",
+                         "theta0": np.asarray(p["theta0"], float).tolist()}
+        c.rho = float(np.linalg.norm(c.E, 2)) if robust else None
+    return c
 
 
 def make_calafiore(ctx, **params):

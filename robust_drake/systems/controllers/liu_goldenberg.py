@@ -108,7 +108,11 @@ class LiuGoldenbergController(DiscreteController):
     def __init__(self, n, period, theta_nom, width, K=K_DEFAULT, Lambda=LAMBDA_DEFAULT,
                  eps_M=EPSILON_M_CPT, eps_C=EPSILON_C_CPT, name="LiuGoldenbergController"):
         if n != 2:
-            raise RobustDrakeError(f"LG/LG+ is written for the 2-link D2R2 (JS eqs. 40-43); got n = {n}")
+            raise RobustDrakeError(
+                f"LG/LG+ is available for 2-link planar horizontal arms only (JS eqs. 40-43); this arm has n = {n}. "
+                "Missing for n joints: the split M(q) a = Y_M(a) theta_M(q), C(q, q') v = Y_C(q', v) theta_C(q) with "
+                "the bounds rho_M(q), rho_C(q) of eqs. 32-33, and a gravity term (eq. 36 has none); "
+                "use sp1, sp2 or calafiore, whose bounds come from the URDF")
         super().__init__(n, period, name=name)
         self.theta_nom = tuple(float(x) for x in theta_nom)
         self.width = tuple(float(x) for x in width)
@@ -134,8 +138,13 @@ def _paper_thetas():
 
 def _require_d2r2(ctx, name):
     if not ctx.robot.startswith("d2r2"):
-        raise RobustDrakeError(f"{name} has the D2R2 bounds of JS appendix 12.3 built in; robot {ctx.robot!r} "
-                               f"needs theta_nom=..., width=... in controller_params")
+        if ctx.n != 2:
+            LiuGoldenbergController(ctx.n, ctx.period, (0.0,) * 3, (0.0,) * 3)  # raises the n-joint message
+        raise RobustDrakeError(
+            f"{name} has the D2R2 bounds of JS appendix 12.3 built in; robot {ctx.robot!r} needs "
+            "controller_params theta_nom=(th1, th2, th3), width=(w1, w2, w3) in JS eq. 14's parameters, which "
+            "exist only for a horizontal 2-link arm whose link-2 centre of mass lies on the link axis "
+            "(d12 = th2 + th3 cos q2); use sp1, sp2 or calafiore for other arms")
 
 
 def make_lg(ctx, **params):

@@ -16,6 +16,7 @@ the circle (section 10). :func:`zc_bounds` recomputes the betas from the paramet
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -126,7 +127,132 @@ class ZeniehCorlessController(DiscreteController):
                          self.beta1, self.beta2, self.epsilon)
 
 
+#: Up to this many uncertain parameters the box's 2^p vertices are enumerated (exact in theta);
+#: above, the triangle-inequality bound (sound, looser).
+MAX_VERTEX_PARAMETERS = 10
+#: Gravity torque [N m] below which an arm counts as horizontal (eq. 25 has no gravity term).
+GRAVITY_TOL = 1e-9
+
+
+def zc_bounds_any_arm(robot, load: str = "none", rel_bound: float = 0.2, abs_bound: float = 0.0,
+                      configs=None, samples: int = 400, seed: int = 0) -> dict:
+    """beta0, beta1, beta2 of JS eqs. 21-23 for any URDF arm, over the box of base parameters
+    |theta_k - theta0_k| <= b_k = rel_bound |theta0_k| + abs_bound (as SP1/SP2's set).
+
+    From the Drake-derived Slotine-Li regressor: M(q) e_j = [Y(q, 0, 0, e_j) - Y(q, 0, 0, 0)] theta
+    and C(q, e_j) e_i = [Y(q, e_j, e_i, 0) - Y(q, 0, 0, 0)] theta are linear in theta, so with
+    M_k(q), C_jk(q) the coefficient matrices of theta_k, over the box (triangle inequality)
+
+        lambda_min M >= lambda_min M(theta0) - sum_k b_k ||M_k||,   lambda_max M <= ... + sum_k b_k ||M_k||,
+        ||C(q, q')|| <= ||q'|| sqrt(sum_j (||C_j(theta0)|| + sum_k b_k ||C_jk||)^2)
+
+    (C(q, q') = sum_j q'_j C_j(q), Cauchy-Schwarz). With at most :data:`MAX_VERTEX_PARAMETERS`
+    uncertain parameters the box vertices are enumerated instead (exact: lambda_min is concave,
+    lambda_max and ||C_j|| convex in theta). Rigorous in theta; the sup/inf over q is
+    sampled: ``configs`` (K x n) or ``samples`` uniform draws over [-pi, pi]^n (joint 1 of a
+    serial arm does not change M or C). Raises :class:`RobustDrakeError` if the arm has gravity
+    torques: eq. 25 has no gravity term and JS give no bound for one.
+    """
+    from robust_drake.regressor import InverseDynamicsRegressor
+
+    reg = InverseDynamicsRegressor.from_robot(robot, load)
+    n, th0 = reg.n, reg.base_parameters()
+    b = rel_bound * np.abs(th0) + abs_bound
+    Q = (np.random.default_rng(seed).uniform(-np.pi, np.pi, size=(samples, n)) if configs is None
+         else np.asarray(configs, float).reshape(-1, n))
+    Z = np.zeros_like(Q)
+    G = reg.slotine_li(Q, Z, Z, Z)  # (K, n, p): gravity columns
+    g_max = float(np.max(np.abs(G @ th0))) if len(Q) else 0.0
+    if g_max > GRAVITY_TOL:
+        raise RobustDrakeError(
+            f"zc: robot {robot!r} has gravity torques up to {g_max:.3g} N m; the ZC law (JS eq. 25) has no "
+            "gravity term and JS eqs. 21-23 give no bound for one, so ZC is defined for horizontal arms only "
+            "(use sp1, sp2, calafiore or bascetta_a/b, which model gravity)")
+    eye = np.eye(n)
+    free = np.flatnonzero(b > 0)
+    thetas = None
+    if len(free) <= MAX_VERTEX_PARAMETERS:  # every vertex of the box
+        signs = np.array(list(itertools.product((-1.0, 1.0), repeat=len(free))), dtype=float).reshape(2 ** len(free), len(free))
+        thetas = np.tile(th0, (len(signs), 1))
+        thetas[:, free] += signs * b[free]
+    beta0, beta1, beta2 = np.inf, 0.0, 0.0
+    for q, Gq in zip(Q, G):
+        qq = np.tile(q, (n, 1))
+        Mk = reg.slotine_li(qq, np.zeros((n, n)), np.zeros((n, n)), eye) - Gq  # (j, i, k): M[i, j] coefficient
+        Mk = np.transpose(Mk, (2, 1, 0))  # (k, i, j)
+        if thetas is not None:  # exact over the box: lambda_min concave, lambda_max convex in theta
+            Ms = np.tensordot(thetas, Mk, axes=1)
+            w = np.linalg.eigvalsh(0.5 * (Ms + np.transpose(Ms, (0, 2, 1))))
+            beta0, beta1 = min(beta0, float(w[:, 0].min())), max(beta1, float(w[:, -1].max()))
+        else:
+            M0 = np.tensordot(th0, Mk, axes=1)
+            dM = float(np.sum(b * np.linalg.norm(Mk, 2, axis=(1, 2))))
+            w = np.linalg.eigvalsh(0.5 * (M0 + M0.T))
+            beta0, beta1 = min(beta0, w[0] - dM), max(beta1, w[-1] + dM)
+        qn = np.repeat(q[None, :], n * n, axis=0)
+        Ej = np.repeat(eye, n, axis=0)  # (j, i) pairs: qd = e_j, v = e_i
+        Ei = np.tile(eye, (n, 1))
+        Ck = (reg.slotine_li(qn, Ej, Ei, np.zeros((n * n, n))) - Gq).reshape(n, n, n, -1)  # (j, i, row, k)
+        Ck = np.transpose(Ck, (0, 3, 2, 1))  # (j, k, row, col=i)
+        if thetas is not None:  # ||C_j(theta)|| is convex in theta: its max over the box is at a vertex
+            cj = np.linalg.norm(np.einsum("jkrc,vk->vjrc", Ck, thetas), 2, axis=(2, 3)).max(axis=0)
+        else:
+            Cj0 = np.einsum("jkrc,k->jrc", Ck, th0)
+            cj = np.linalg.norm(Cj0, 2, axis=(1, 2)) + np.einsum("k,jk->j", b, np.linalg.norm(Ck, 2, axis=(2, 3)))
+        beta2 = max(beta2, float(np.sqrt(np.sum(cj ** 2))))
+    if not beta0 > 0:
+        raise RobustDrakeError(
+            f"zc: over the box (rel_bound {rel_bound}, abs_bound {abs_bound}) the inertia bound beta0 = {beta0:.3g} "
+            "is not positive (JS eq. 21 needs M(q) >= beta0 I > 0); use a smaller box")
+    return {"beta0": float(beta0), "beta1": float(beta1), "beta2": float(beta2), "rel_bound": float(rel_bound),
+            "abs_bound": float(abs_bound), "configs": int(len(Q)), "g_max": g_max,
+            "parameters": list(reg.base_names), "theta0": th0.tolist(), "bounds": b.tolist()}
+
+
+def zc_default_epsilon(ctx, beta1, beta2, K, samples: int = 200) -> float:
+    """epsilon for arms without a published one: the robust gain rho^2 / (rho ||r|| + epsilon) of
+    eq. 25 is at most rho^2 / epsilon; epsilon = rho_max^2 / min(K), rho_max = max of
+    beta1 ||qdd_d|| + beta2 ||qd_d||^2 along the loop's reference (rho at zero error), caps it at
+    min(K) (same rule as SP1's boundary layer; without it the imi_scara loop at 1 kHz blew up
+    within 10 ms with the D2R2's epsilon = 25)."""
+    from robust_drake.trajectories import make_reference
+
+    cfg = ctx.config
+    kmin = float(np.min(np.broadcast_to(np.asarray(K, float), (ctx.n,))))
+    if cfg is None or not hasattr(cfg, "trajectory"):
+        return EPSILON_CPT
+    ref = make_reference(ctx.arm, cfg.trajectory, **dict(getattr(cfg, "trajectory_params", {}) or {}))
+    duration = float(getattr(cfg, "duration", None) or ref.duration)
+    _, qd, qdd = (np.asarray(x, float).reshape(-1, ctx.n) for x in ref(np.linspace(0.0, duration, samples)))
+    rho = beta1 * np.linalg.norm(qdd, axis=1) + beta2 * np.linalg.norm(qd, axis=1) ** 2
+    r = float(rho.max())
+    return r * r / kmin if r > 0 else EPSILON_CPT
+
+
 def make_zc(ctx, **params):
-    """Registry factory ``zc``: JS appendix 12.2 bounds, table 1 epsilon = 25 by default
-    (pass ``epsilon=45`` for the circle, section 10)."""
-    return ZeniehCorlessController(ctx.n, ctx.period, **params)
+    """Registry factory ``zc``: JS appendix 12.2 bounds for the D2R2, table 1 epsilon = 25 by
+    default (pass ``epsilon=45`` for the circle, section 10). Any other arm: beta0..2 from
+    :func:`zc_bounds_any_arm` (params ``rel_bound``, ``abs_bound``; horizontal arms only), gains
+    from :func:`robust_drake.systems.controllers.spong.default_gains`."""
+    params = dict(params)
+    box = {k: params.pop(k) for k in ("rel_bound", "abs_bound") if k in params}
+    unc = None
+    if not str(ctx.robot).startswith("d2r2") and not {"beta1", "beta2"} <= set(params):
+        from robust_drake.systems.controllers.spong import default_gains
+
+        unc = zc_bounds_any_arm(ctx.robot, ctx.load, **box)
+        params.setdefault("beta1", unc["beta1"])
+        params.setdefault("beta2", unc["beta2"])
+        K0, L0 = default_gains(ctx)
+        params.setdefault("K", K0)
+        params.setdefault("Lambda", L0)
+        if "epsilon" not in params:
+            params["epsilon"] = zc_default_epsilon(ctx, params["beta1"], params["beta2"], params["K"])
+            unc["epsilon_rule"] = {"epsilon": params["epsilon"]}
+        unc = dict(unc, kind="box", source="URDF base parameters +- rel_bound |theta0_i| + abs_bound; "
+                   "beta0..2 of JS eqs. 21-23 over it (sampled configurations)")
+    elif box:
+        raise RobustDrakeError("zc: rel_bound/abs_bound apply to arms other than the D2R2 (JS appendix 12.2 bounds)")
+    c = ZeniehCorlessController(ctx.n, ctx.period, **params)
+    c.uncertainty = unc
+    return c
