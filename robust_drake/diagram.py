@@ -33,13 +33,14 @@ from typing import Any, Callable
 import numpy as np
 from pydrake.systems.analysis import ResetIntegratorFromFlags, Simulator
 from pydrake.systems.framework import DiagramBuilder
-from pydrake.systems.primitives import Adder, ConstantVectorSource, LogVectorOutput, Saturation
+from pydrake.systems.primitives import ConstantVectorSource, LogVectorOutput, Saturation
 
 from robust_drake.divergence import STATE_LIMIT, TRACKING_ERROR_LIMIT, is_diverged
 from robust_drake.errors import RobustDrakeError
 from robust_drake.metrics import error_criteria, torque_statistics
 from robust_drake.models import ArmSpec, ROBOTS, add_arm, get_arm, set_d2r2_theta
 from robust_drake.registry import BuildContext, resolve
+from robust_drake.systems.forces import add_force_blocks, sum_into_plant
 from robust_drake.systems.friction import (
     D2R2_COULOMB,
     D2R2_K_HAT,
@@ -392,11 +393,11 @@ class ClosedLoop:
         if obs.HasInputPort("tau"):
             builder.Connect(tau, obs.GetInputPort("tau"))
 
-        # plant-side forces: applied torque + friction + effects
+        # plant-side forces: applied torque + friction + effects (robust_drake.systems.forces)
         forces = [tau] if self.flexibility is None else self.flexibility.forces(builder, tau)
         self.effect_blocks = []
         if c.plant_friction is not None:
-            fr = builder.AddSystem(CoulombViscousFriction(n, c.plant_friction["coulomb"], c.plant_friction["viscous"]))
+            fr = CoulombViscousFriction(n, c.plant_friction["coulomb"], c.plant_friction["viscous"])
             fr.set_name("plant_friction")
             self.effect_blocks.append(fr)
         for i, eff in enumerate(c.effects):
@@ -405,22 +406,10 @@ class ClosedLoop:
             else:
                 name, params = (eff[0], eff[1]) if len(eff) > 1 else (eff[0], {})
                 block = _make_block("plant_effect", name, ctx, params)
-            block = builder.AddSystem(block)
             block.set_name(f"effect_{i}_{block.get_name() or type(block).__name__}")
             self.effect_blocks.append(block)
-        for block in self.effect_blocks:
-            builder.Connect(plant.get_state_output_port(), block.GetInputPort("state"))
-            if block.HasInputPort("tau"):
-                builder.Connect(tau, block.GetInputPort("tau"))
-            forces.append(block.GetOutputPort("generalized_force"))
-        if len(forces) > 1:
-            add = builder.AddSystem(Adder(len(forces), n))
-            add.set_name("force_sum")
-            for i, f in enumerate(forces):
-                builder.Connect(f, add.get_input_port(i))
-            builder.Connect(add.get_output_port(0), plant.get_applied_generalized_force_input_port())
-        else:
-            builder.Connect(forces[0], plant.get_applied_generalized_force_input_port())
+        forces += add_force_blocks(builder, plant, self.effect_blocks, tau)
+        sum_into_plant(builder, plant, forces)
         if plant.num_actuators() > 0:
             zero = builder.AddSystem(ConstantVectorSource(np.zeros(plant.num_actuators())))
             builder.Connect(zero.get_output_port(0), plant.get_actuation_input_port())

@@ -22,10 +22,12 @@ for the derivation of l1 = l2 = 0.30 m.
 from __future__ import annotations
 
 import importlib.resources
+import logging
 import math
 import os
 import pathlib
 from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 
@@ -204,7 +206,7 @@ def resolve_urdf(robot: str | os.PathLike, load: str = "none") -> pathlib.Path:
                 f"URDF for robot {text!r} (load {load!r}) not found at {path}; {hint}"
             )
         return path
-    if text.endswith(".urdf"):
+    if text.endswith((".urdf", ".sdf")):
         path = pathlib.Path(text).expanduser()
         if not path.is_file():
             raise RobustDrakeError(f"URDF file {path} does not exist")
@@ -214,8 +216,15 @@ def resolve_urdf(robot: str | os.PathLike, load: str = "none") -> pathlib.Path:
             )
         return path.resolve()
     raise RobustDrakeError(
-        f"unknown robot {text!r}: give one of {', '.join(sorted(ROBOTS))} or a path to a .urdf file"
+        f"unknown robot {text!r}: give one of {', '.join(sorted(ROBOTS))} or a path to a .urdf/.sdf file"
     )
+
+
+#: Joint types an arm may have (Drake's names; a URDF ``continuous`` joint is a ``revolute`` one).
+SUPPORTED_JOINT_TYPES = ("revolute", "prismatic", "weld")
+
+_log = logging.getLogger("robust_drake.models")
+_WELD_REPORTED: set = set()
 
 
 def _parse_into(plant, robot, load):
@@ -223,33 +232,89 @@ def _parse_into(plant, robot, load):
 
     path = resolve_urdf(robot, load)
     try:
-        Parser(plant).AddModels(str(path))
+        instances = Parser(plant).AddModels(str(path))
     except RuntimeError as exc:  # Drake parser errors
         raise RobustDrakeError(f"could not parse {path}: {exc}") from exc
-    return path
+    return path, instances
 
 
-def make_plant(robot: str, load: str = "none", time_step: float = 0.0, *,
-               use_sampled_output_ports: bool = False):
-    """A finalized, standalone ``MultibodyPlant`` of ``robot`` (no SceneGraph).
+def _root_bodies(plant, instances):
+    """Bodies of the parsed model instances with no joint to a parent (pre-Finalize)."""
+    children = {plant.get_joint(j).child_body().index() for j in plant.GetJointIndices()}
+    return [b for mi in instances for b in (plant.get_body(i) for i in plant.GetBodyIndices(mi))
+            if b.index() not in children]
 
-    Gravity is Drake's default (world -z, 9.81 m/s^2); horizontal arms have their joint axes
-    along world z so gravity produces no joint torque.  For a discrete plant (time_step > 0)
-    the sampled output ports are switched off by default (see the pydrake pitfalls notes).
-    """
-    from pydrake.multibody.plant import MultibodyPlant
 
-    plant = MultibodyPlant(time_step=float(time_step))
-    _parse_into(plant, robot, load)
+def _weld_roots(plant, instances, path, floating_base: bool) -> None:
+    """Weld the model's root link to the world (a URDF without a world joint), unless a floating
+    base is asked for.  More than one root (a ``floating`` URDF joint leaves a free body, or
+    disconnected links) is refused: which body is the base would be a guess."""
+    roots = _root_bodies(plant, instances)
+    if floating_base or not roots:
+        return
+    if len(roots) > 1:
+        raise RobustDrakeError(
+            f"{path}: links {', '.join(repr(b.name()) for b in roots)} have no joint to a parent "
+            "(a 'floating' joint or disconnected links); an arm needs one tree rooted at its base")
+    plant.WeldFrames(plant.world_frame(), roots[0].body_frame())
+    if str(path) not in _WELD_REPORTED:
+        _WELD_REPORTED.add(str(path))
+        _log.warning("%s: root link %r has no joint to the world; welded to it "
+                     "(make_plant(..., floating_base=True) for a floating base)", path, roots[0].name())
+
+
+def _check_joints(plant, path, floating_base: bool) -> None:
+    """RobustDrakeError naming the first joint that is not revolute/prismatic/fixed (a floating
+    base joint to the world is accepted when ``floating_base``)."""
+    for ji in plant.GetJointIndices():
+        j = plant.get_joint(ji)
+        if j.type_name() in SUPPORTED_JOINT_TYPES:
+            continue
+        if floating_base and j.parent_body().index() == plant.world_body().index():
+            continue
+        raise RobustDrakeError(
+            f"{path}: joint {j.name()!r} is a {j.type_name()} joint; supported are revolute "
+            "(URDF revolute/continuous), prismatic and fixed joints")
+
+
+def _populate(plant, robot, load, time_step, before_finalize, floating_base,
+              use_sampled_output_ports):
+    """The one loading sequence: parse, hook, weld the root, finalize, check the joints."""
+    path, instances = _parse_into(plant, robot, load)
+    if before_finalize is not None:
+        before_finalize(plant)
+    _weld_roots(plant, instances, path, floating_base)
     if time_step > 0 and not use_sampled_output_ports:
         plant.SetUseSampledOutputPorts(False)
     plant.Finalize()
+    _check_joints(plant, path, floating_base)
     return plant
 
 
+def make_plant(robot: str, load: str = "none", time_step: float = 0.0, *,
+               before_finalize: Callable | None = None, floating_base: bool = False,
+               use_sampled_output_ports: bool = False):
+    """A finalized, standalone ``MultibodyPlant`` of ``robot`` (no SceneGraph).
+
+    ``robot`` is a name in :data:`ROBOTS` or a URDF/SDF path.  ``before_finalize(plant)`` is
+    called after parsing and before ``Finalize()`` (add bodies, weld a payload, ...).  A root
+    link without a joint to the world is welded to it (one logged message per file) unless
+    ``floating_base``; joints other than revolute/prismatic/fixed raise RobustDrakeError naming
+    the joint.  Gravity is Drake's default (world -z, 9.81 m/s^2); horizontal arms have their
+    joint axes along world z so gravity produces no joint torque.  For a discrete plant
+    (time_step > 0) the sampled output ports are switched off by default (see the pydrake
+    pitfalls notes).
+    """
+    from pydrake.multibody.plant import MultibodyPlant
+
+    return _populate(MultibodyPlant(time_step=float(time_step)), robot, load, time_step,
+                     before_finalize, floating_base, use_sampled_output_ports)
+
+
 def add_arm(builder, robot: str, load: str = "none", time_step: float = 0.0, *,
+            before_finalize: Callable | None = None, floating_base: bool = False,
             use_sampled_output_ports: bool = False):
-    """Add ``robot`` to a ``DiagramBuilder`` with ``AddMultibodyPlantSceneGraph``.
+    """:func:`make_plant` added to a ``DiagramBuilder`` with ``AddMultibodyPlantSceneGraph``.
 
     Returns ``(plant, scene_graph)``; the plant is finalized.  Actuation input port
     ``plant.get_actuation_input_port()`` has one entry per joint (motor1..motorn, in joint
@@ -258,10 +323,7 @@ def add_arm(builder, robot: str, load: str = "none", time_step: float = 0.0, *,
     from pydrake.multibody.plant import AddMultibodyPlantSceneGraph
 
     plant, scene_graph = AddMultibodyPlantSceneGraph(builder, time_step=float(time_step))
-    _parse_into(plant, robot, load)
-    if time_step > 0 and not use_sampled_output_ports:
-        plant.SetUseSampledOutputPorts(False)
-    plant.Finalize()
+    _populate(plant, robot, load, time_step, before_finalize, floating_base, use_sampled_output_ports)
     return plant, scene_graph
 
 
