@@ -35,20 +35,15 @@ from pydrake.systems.analysis import ResetIntegratorFromFlags, Simulator
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource, LogVectorOutput, Saturation
 
+from robust_drake.description import describe
 from robust_drake.divergence import STATE_LIMIT, TRACKING_ERROR_LIMIT, is_diverged
 from robust_drake.errors import RobustDrakeError
 from robust_drake.metrics import error_criteria, torque_statistics
 from robust_drake.models import ArmSpec, ROBOTS, add_arm, get_arm, set_d2r2_theta
 from robust_drake.registry import BuildContext, resolve
 from robust_drake.systems.forces import add_force_blocks, sum_into_plant
-from robust_drake.systems.friction import (
-    D2R2_COULOMB,
-    D2R2_K_HAT,
-    D2R2_VISCOUS,
-    CoulombViscousFriction,
-    FixedFrictionCompensation,
-)
-from robust_drake.systems.sensors import D2R2_THETA_M, QuantizingEncoder, quantize
+from robust_drake.systems.friction import CoulombViscousFriction, FixedFrictionCompensation
+from robust_drake.systems.sensors import QuantizingEncoder, quantize
 from robust_drake.trajectories import ReferenceTrajectory, make_reference
 
 MAX_INTEGRATOR_STEP = 4e-4  # s; the plant is integrated with steps no longer than this
@@ -89,12 +84,12 @@ class ClosedLoopConfig:
     """Everything that defines one closed loop (serialisable except ``effects`` callables).
 
     ``plant_friction``: ``{"coulomb": [...], "viscous": [...]}`` for the plant-side
-    Coulomb + viscous block, None for a frictionless plant; the default is the D2R2 values
-    for the D2R2 and None for other robots. ``friction_compensation`` adds the fixed JS
+    Coulomb + viscous block, None for a frictionless plant; the default is the robot description's
+    (``robust_drake.description``; the D2R2's values for the D2R2, None for robots without one). ``friction_compensation`` adds the fixed JS
     eqs. 89-90 term (``compensation_params={"k_hat": [...]}``). ``encoder_resolution``
-    [rad] quantises the measured position (None: exact); default theta_m of the D2R2 for
-    the D2R2, None otherwise. ``torque_limit`` [N m] saturates the command (None: no
-    limit); default 31.2 N m for the D2R2. ``true_theta`` sets the D2R2 plant's eq. 14
+    [rad] quantises the measured position (None: exact); default from the description (theta_m
+    for the D2R2). ``torque_limit`` [N m] saturates the command (None: no limit); default the
+    description's torque limits when it says ``saturate`` (31.2 N m for the D2R2). ``true_theta`` sets the D2R2 plant's eq. 14
     parameters (Monte Carlo "true" arm). ``effects`` are extra plant-side blocks: each a
     registry name with params ``(name, {params})`` or a callable ``f(ctx) -> LeafSystem``
     with input ``state`` (and optionally ``tau``) and output ``generalized_force``.
@@ -140,15 +135,9 @@ class ClosedLoopConfig:
     def resolved(self) -> "ClosedLoopConfig":
         """A copy with the robot-dependent defaults filled in and inputs checked."""
         c = ClosedLoopConfig(**{k: getattr(self, k) for k in self.__dataclass_fields__})
-        d2r2 = str(c.robot).startswith("d2r2")
-        if c.plant_friction is _DEFAULT:
-            c.plant_friction = {"coulomb": list(D2R2_COULOMB), "viscous": list(D2R2_VISCOUS)} if d2r2 else None
-        if c.encoder_resolution is _DEFAULT:
-            c.encoder_resolution = D2R2_THETA_M if d2r2 else None
-        if c.torque_limit is _DEFAULT:
-            arm = ROBOTS.get(c.robot)
-            lim = arm.torque_limits if arm is not None and arm.torque_limits else None
-            c.torque_limit = list(lim) if (lim is not None and d2r2) else None
+        for name, value in describe(c.robot).closed_loop_defaults().items():
+            if getattr(c, name) is _DEFAULT:
+                setattr(c, name, value)
         if c.duration is not None:
             check_run_size(c.duration, c.rate)
         return c
@@ -360,8 +349,9 @@ class ClosedLoop:
         self.compensation = None
         if c.friction_compensation:
             params = dict(c.compensation_params)
-            if not params and str(c.robot).startswith("d2r2"):
-                params = {"k_hat": list(D2R2_K_HAT)}
+            k_hat = describe(c.robot).friction_compensation_k_hat
+            if not params and k_hat is not None:
+                params = {"k_hat": list(k_hat)}
             if "k_hat" not in params:
                 raise RobustDrakeError("friction_compensation needs compensation_params={'k_hat': [...]} for this robot")
             comp = builder.AddSystem(FixedFrictionCompensation(n, **params))
@@ -459,7 +449,7 @@ class ClosedLoop:
         plant.SetPositions(plant_context, q0)
         plant.SetVelocities(plant_context, np.zeros(n))
         if c.true_theta is not None:
-            if not str(c.robot).startswith("d2r2"):
+            if describe(c.robot).closed_form_regressor != "d2r2":
                 raise RobustDrakeError("true_theta is defined for the D2R2 (JS eq. 14); use plant_setup for other robots")
             set_d2r2_theta(plant, plant_context, np.asarray(c.true_theta, dtype=float))
         for setup in c.plant_setup:

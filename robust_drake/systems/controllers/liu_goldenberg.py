@@ -133,7 +133,9 @@ def _paper_thetas():
 
 
 def _require_d2r2(ctx, name):
-    if not ctx.robot.startswith("d2r2"):
+    from robust_drake.description import describe
+
+    if not {"unloaded", "loaded"} <= set(describe(ctx.robot).parameter_sets):
         raise RobustDrakeError(f"{name} has the D2R2 bounds of JS appendix 12.3 built in; robot {ctx.robot!r} "
                                f"needs theta_nom=..., width=... in controller_params")
 
