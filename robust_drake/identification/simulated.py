@@ -138,6 +138,58 @@ def _as_effects(effects) -> list[tuple[Effect, dict]]:
     return out
 
 
+@dataclass
+class Experiment:
+    """The built diagram of a simulated experiment and the handles :func:`simulate_experiment`
+    needs (the true plant, the PD excitation, the loggers)."""
+
+    diagram: object
+    plant: object
+    controller: PDExcitation
+    reference: FourierReference
+    log_x: object
+    log_u: object
+    period: float
+    n: int
+
+
+def build_experiment(robot, effects, excitation: dict, rng_ref, coulomb, viscous, rate_hz,
+                     extra_blocks=()) -> Experiment:
+    """The true arm's diagram (see the module docstring): ``robot`` with the plant-modifying
+    ``effects`` [(Effect, parameters), ...] applied before ``Finalize``, PD excitation, and the
+    plant-side forces tau + effect blocks + baseline friction (smooth sign, v_eps =
+    :data:`TRUE_FRICTION_V_EPS`) + ``extra_blocks`` through the one force path
+    (``effects.add_effect_blocks`` -> ``systems.forces.sum_into_plant``)."""
+    exc = excitation
+    builder = DiagramBuilder()
+    plant = load_plant(robot, effects, time_step=0.0, builder=builder)
+    n = plant.num_velocities()
+    amp = np.broadcast_to(np.asarray(exc["amplitude"], float), (n,))
+    ref = FourierReference.random(n, rng_ref, amp, exc["base_frequency"], exc["harmonics"],
+                                  exc["offset"])
+
+    # PD gains from the mass matrix at the reference's start (decoupled error dynamics there).
+    ctx0 = plant.CreateDefaultContext()
+    plant.SetPositions(ctx0, ref(0.0)[0])
+    M0 = plant.CalcMassMatrix(ctx0)
+    w = 2 * math.pi * exc["bandwidth_hz"]
+    ctrl = builder.AddSystem(PDExcitation(ref, M0 * w * w, 2 * 0.7 * M0 * w, exc["torque_limit"]))
+    ctrl.set_name("pd_excitation")
+    builder.Connect(plant.get_state_output_port(), ctrl.get_input_port(0))
+
+    fric = CoulombViscousFriction(n, np.broadcast_to(coulomb, (n,)), np.broadcast_to(viscous, (n,)),
+                                  TRUE_FRICTION_V_EPS, nonnegative=False)
+    fric.set_name("baseline_friction")
+    add_effect_blocks(builder, plant, ctrl.get_output_port(0), effects, sample_period=1.0 / rate_hz,
+                      extra_blocks=[fric] + [f(n) for f in extra_blocks])
+    period = 1.0 / rate_hz
+    log_x = builder.AddSystem(VectorLogSink(2 * n, period))
+    log_u = builder.AddSystem(VectorLogSink(n, period))
+    builder.Connect(plant.get_state_output_port(), log_x.get_input_port())
+    builder.Connect(ctrl.get_output_port(0), log_u.get_input_port())
+    return Experiment(builder.Build(), plant, ctrl, ref, log_x, log_u, period, n)
+
+
 def simulate_experiment(robot=DEFAULT_ROBOT, effects=(), duration=15.0, rate_hz=250.0, seed=0,
                         excitation=None, encoder_resolution=2 * math.pi / 2**14,
                         torque_noise_std=0.005, out_csv=None, coulomb=(0.08, 0.05),
@@ -162,35 +214,10 @@ def simulate_experiment(robot=DEFAULT_ROBOT, effects=(), duration=15.0, rate_hz=
     rng_ref = np.random.default_rng(exc["seed"])
     rng_noise = np.random.default_rng(10_000 + seed)
 
-    effs = _as_effects(effects)
-    builder = DiagramBuilder()
-    plant = load_plant(robot, effs, time_step=0.0, builder=builder)
-    n = plant.num_velocities()
-    amp = np.broadcast_to(np.asarray(exc["amplitude"], float), (n,))
-    ref = FourierReference.random(n, rng_ref, amp, exc["base_frequency"], exc["harmonics"],
-                                  exc["offset"])
-
-    # PD gains from the mass matrix at the reference's start (decoupled error dynamics there).
-    ctx0 = plant.CreateDefaultContext()
-    plant.SetPositions(ctx0, ref(0.0)[0])
-    M0 = plant.CalcMassMatrix(ctx0)
-    w = 2 * math.pi * exc["bandwidth_hz"]
-    ctrl = builder.AddSystem(PDExcitation(ref, M0 * w * w, 2 * 0.7 * M0 * w, exc["torque_limit"]))
-    ctrl.set_name("pd_excitation")
-    builder.Connect(plant.get_state_output_port(), ctrl.get_input_port(0))
-
-    fric = CoulombViscousFriction(n, np.broadcast_to(coulomb, (n,)), np.broadcast_to(viscous, (n,)),
-                                  TRUE_FRICTION_V_EPS, nonnegative=False)
-    fric.set_name("baseline_friction")
-    add_effect_blocks(builder, plant, ctrl.get_output_port(0), effs, sample_period=1.0 / rate_hz,
-                      extra_blocks=[fric] + [f(n) for f in extra_blocks])
-    period = 1.0 / rate_hz
-
-    log_x = builder.AddSystem(VectorLogSink(2 * n, period))
-    log_u = builder.AddSystem(VectorLogSink(n, period))
-    builder.Connect(plant.get_state_output_port(), log_x.get_input_port())
-    builder.Connect(ctrl.get_output_port(0), log_u.get_input_port())
-    diagram = builder.Build()
+    exp = build_experiment(robot, _as_effects(effects), exc, rng_ref, coulomb, viscous, rate_hz,
+                           extra_blocks)
+    diagram, plant, ref, period, n = exp.diagram, exp.plant, exp.reference, exp.period, exp.n
+    log_x, log_u = exp.log_x, exp.log_u
 
     sim = Simulator(diagram)
     root = sim.get_mutable_context()
