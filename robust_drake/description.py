@@ -12,6 +12,11 @@ the repair's plausibility notes quote (gear ratio, rotor inertia, backlash, bus)
 File format (every key optional except ``name``)::
 
     name: d2r2
+    urdf: d2r2.urdf                      # file beside this one (named robots)
+    loads: {none: d2r2.urdf, max: d2r2_loaded.urdf}
+    gravity: false                       # does gravity act on the joints
+    plane: horizontal                    # horizontal | vertical | null
+    summary: "..."                       # one line for listings
     n: 2
     link_lengths: [0.30, 0.30]          # m, for task-space metrics
     drive: direct                        # direct | geared | qdd | unknown
@@ -44,7 +49,8 @@ from dataclasses import dataclass, field, fields
 
 from robust_drake.errors import RobustDrakeError
 
-__all__ = ["RobotDescription", "DEFAULT", "describe", "description_path", "load_description"]
+__all__ = ["RobotDescription", "DEFAULT", "describe", "description_path", "load_description",
+           "packaged_descriptions"]
 
 DRIVES = ("direct", "geared", "qdd", "unknown")
 
@@ -56,6 +62,11 @@ class RobotDescription:
     loop clamps the command at ``torque_limits`` by default."""
 
     name: str
+    urdf: str | None = None
+    loads: dict = field(default_factory=dict)
+    gravity: bool = True
+    plane: str | None = None
+    summary: str = ""
     n: int | None = None
     link_lengths: tuple = ()
     drive: str = "unknown"
@@ -135,8 +146,13 @@ def _parse(doc: dict, path: str) -> RobotDescription:
     if sim.get("encoder_counts_per_rev") is not None:
         enc = 2.0 * math.pi / _opt_float(sim["encoder_counts_per_rev"], "encoder_counts_per_rev", path)
     n = doc.get("n")
+    loads = doc.get("loads") or ({"none": doc["urdf"]} if doc.get("urdf") else {})
+    if not isinstance(loads, dict):
+        raise RobustDrakeError(f"{path}: loads must map a load name to a URDF file")
     return RobotDescription(
-        name=str(doc["name"]), n=None if n is None else int(n),
+        name=str(doc["name"]), urdf=doc.get("urdf"), loads={str(k): str(v) for k, v in loads.items()},
+        gravity=bool(doc.get("gravity", True)), plane=doc.get("plane"), summary=str(doc.get("summary", "")),
+        n=None if n is None else int(n),
         link_lengths=_opt_tuple(doc.get("link_lengths"), "link_lengths", path) or (),
         drive=drive, gear_ratio=_opt_float(doc.get("gear_ratio"), "gear_ratio", path),
         rotor_inertia=_opt_float(doc.get("rotor_inertia"), "rotor_inertia", path),
@@ -173,11 +189,12 @@ def load_description(path) -> RobotDescription:
 
 def description_path(robot) -> pathlib.Path | None:
     """The description file of ``robot`` (name or URDF path), or None if it has none."""
-    from robust_drake.models import ROBOTS, models_dir
+    from robust_drake.models import ROBOTS, packaged_models_dir, models_dir
 
     text = os.fspath(robot)
-    if text in ROBOTS:
+    if text in ROBOTS:  # ROBUST_DRAKE_MODELS may hold its own description, else the packaged one
         p = models_dir() / f"{text}.yaml"
+        p = p if p.is_file() else packaged_models_dir() / f"{text}.yaml"
     elif text.endswith((".urdf", ".sdf")):
         p = pathlib.Path(text).expanduser().with_suffix(".yaml")
     else:
@@ -192,3 +209,8 @@ def describe(robot) -> RobotDescription:
     if p is None:
         return RobotDescription(name=str(robot))
     return load_description(p)
+
+
+def packaged_descriptions(folder) -> list[RobotDescription]:
+    """Every ``*.yaml`` description in ``folder`` (the shipped robots), sorted by file name."""
+    return [load_description(p) for p in sorted(pathlib.Path(folder).glob("*.yaml"))]

@@ -14,6 +14,9 @@ environment variable ``ROBUST_DRAKE_MODELS``.  Conventions shared by all files:
   (``<transmission>`` with ``drake:rotor_inertia`` and ``drake:gear_ratio``), so the plant's mass
   matrix contains ``kr^2 Ir`` on the diagonal.
 
+The named robots (:data:`ROBOTS`) are the robot descriptions shipped beside the URDFs
+(``robots/<name>.yaml``, :mod:`robust_drake.description`).
+
 D2R2 numbers (Jaritz & Spong, seeds/001, appendix): tables 8, 9, 11 and eq. 93.  The link
 lengths are not printed; see ``models/d2r2.urdf`` and BUILD_NOTES.md ("Models and regressors")
 for the derivation of l1 = l2 = 0.30 m.
@@ -38,6 +41,7 @@ __all__ = [
     "ROBOTS",
     "ArmSpec",
     "get_arm",
+    "packaged_models_dir",
     "models_dir",
     "resolve_urdf",
     "make_plant",
@@ -93,86 +97,26 @@ class ArmSpec:
 
 D2R2_TORQUE_LIMIT = 31.2  # N m, JS section 1 (+-8 V command, Compumotor DM1015-B)
 
-ROBOTS: dict[str, ArmSpec] = {
-    "d2r2": ArmSpec(
-        name="d2r2",
-        urdf="d2r2.urdf",
-        n=2,
-        link_lengths=(0.30, 0.30),
-        gravity=False,
-        plane="horizontal",
-        loads={"none": "d2r2.urdf", "max": "d2r2_loaded.urdf"},
-        description=(
-            "Jaritz & Spong D2R2 two-link direct-drive arm, horizontal plane; theta (eq. 14) = "
-            "table 8 unloaded, table 9 with the maximum load (eq. 93) welded to link 2"
-        ),
-        torque_limits=(D2R2_TORQUE_LIMIT, D2R2_TORQUE_LIMIT),
-    ),
-    "imi_scara": ArmSpec(
-        name="imi_scara",
-        urdf="imi_scara.urdf",
-        n=2,
-        link_lengths=(0.359, 0.24),
-        gravity=False,
-        plane="horizontal",
-        loads={"none": "imi_scara.urdf"},
-        description=(
-            "Calafiore & Indri IMI SCARA, horizontal plane; inertial part of the section 5.1 "
-            "central estimate theta0 where physically realisable (friction not in the URDF)"
-        ),
-    ),
-    "siciliano_2link": ArmSpec(
-        name="siciliano_2link",
-        urdf="siciliano_2link.urdf",
-        n=2,
-        link_lengths=(1.0, 1.0),
-        gravity=True,
-        plane="vertical",
-        loads={"none": "siciliano_2link.urdf"},
-        description=(
-            "Bascetta & Rocco case study (Sciavicco & Siciliano two-link arm): 50 kg links, "
-            "5 kg motors, rotor inertia 0.01 kg m^2, gear ratio 100, vertical plane"
-        ),
-    ),
-    "dfki_double_pendulum_c1": ArmSpec(
-        name="dfki_double_pendulum_c1",
-        urdf="dfki_double_pendulum_c1.urdf",
-        n=2,
-        link_lengths=(0.2, 0.3),
-        gravity=True,
-        plane="vertical",
-        loads={"none": "dfki_double_pendulum_c1.urdf"},
-        description=(
-            "DFKI RIC double pendulum, design C.1 (data in ../shared/data/dfki_double_pendulum), "
-            "q = 0 hanging down; inertias from the lab's dfki_model_1.0.yml"
-        ),
-        torque_limits=(12.0, 12.0),
-    ),
-    "dfki_double_pendulum_a0": ArmSpec(
-        name="dfki_double_pendulum_a0",
-        urdf="dfki_double_pendulum_a0.urdf",
-        n=2,
-        link_lengths=(0.3, 0.2),
-        gravity=True,
-        plane="vertical",
-        loads={"none": "dfki_double_pendulum_a0.urdf"},
-        description=(
-            "DFKI RIC double pendulum, design A.0 (l1 = 0.3 m, l2 = 0.2 m); no lab parameter file, "
-            "inertias scaled from design C.1"
-        ),
-        torque_limits=(12.0, 12.0),
-    ),
-    "serial7": ArmSpec(
-        name="serial7",
-        urdf="serial7.urdf",
-        n=7,
-        link_lengths=(0.2025, 0.2045, 0.2155, 0.18558, 0.2155, 0.08638, 0.126),  # joint-to-joint offsets
-        gravity=True,
-        plane=None,
-        loads={"none": "serial7.urdf"},
-        description="7-link serial test arm (iiwa-like axes, gravity, geared joints) for regressor speed",
-    ),
-}
+
+def packaged_models_dir() -> pathlib.Path:
+    """The shipped ``robust_drake/robots`` folder (URDFs and robot descriptions)."""
+    return _DEFAULT_MODELS_DIR
+
+
+def _named_robots() -> dict[str, ArmSpec]:
+    """One :class:`ArmSpec` per shipped robot description (``robots/<name>.yaml``, see
+    :mod:`robust_drake.description`)."""
+    from robust_drake.description import packaged_descriptions
+
+    return {d.name: ArmSpec(name=d.name, urdf=d.urdf, n=d.n, link_lengths=d.link_lengths,
+                            gravity=d.gravity, plane=d.plane, loads=dict(d.loads),
+                            description=d.summary, torque_limits=d.torque_limits)
+            for d in packaged_descriptions(_DEFAULT_MODELS_DIR)}
+
+
+#: The named robots, read from the shipped descriptions (d2r2, imi_scara, siciliano_2link,
+#: dfki_double_pendulum_c1/_a0, serial7).
+ROBOTS: dict[str, ArmSpec] = _named_robots()
 
 
 def get_arm(name: str) -> ArmSpec:

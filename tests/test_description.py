@@ -87,11 +87,20 @@ def test_plausibility_quotes_the_description(tmp_path):
 
 
 @pytest.mark.parametrize("robot", sorted(ROBOTS))
-def test_every_shipped_robot_has_a_matching_description(robot):
-    d, arm = describe(robot), ROBOTS[robot]
-    assert d.name == robot and d.n == arm.n
-    assert np.allclose(d.link_lengths, arm.link_lengths)
-    assert (d.torque_limits is None) == (arm.torque_limits is None)
+def test_every_shipped_description_matches_its_urdf(robot):
+    """n and (two-link arms) the link lengths of the description are the URDF's: l1 = distance
+    of joint 2's axis from joint 1's, l2 = distance of the ``tool`` frame from joint 2."""
+    from robust_drake.models import _joint2_offset, make_plant
+
+    d = describe(robot)
+    plant = make_plant(robot)
+    assert d.name == robot and d.n == plant.num_velocities() == len(d.link_lengths)
+    if d.n == 2:
+        _, j2, l1 = _joint2_offset(plant)
+        tool = plant.GetFrameByName("tool")
+        assert tool.body().index() == j2.child_body().index()
+        l2 = np.hypot(*tool.GetFixedPoseInBodyFrame().translation()[:2])
+        assert np.allclose(d.link_lengths, (l1, l2), rtol=1e-12)
 
 
 @pytest.mark.parametrize("bad, match", [
