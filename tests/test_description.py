@@ -71,6 +71,14 @@ def test_d2r2_description_holds_the_paper_numbers():
     assert math.isclose(c["encoder_resolution"], 2 * math.pi / 655360, rel_tol=1e-15)
     assert d.friction_compensation_k_hat == (1.0, 2.0)
     assert d.drive == "direct" and not d.geared and d.closed_form_regressor == "d2r2"
+    # the module constants other code imports are the same numbers (one source of behaviour)
+    from robust_drake.models import D2R2_TORQUE_LIMIT
+    from robust_drake.systems.friction import D2R2_COULOMB, D2R2_K_HAT, D2R2_VISCOUS
+    from robust_drake.systems.sensors import D2R2_THETA_M
+
+    assert c["plant_friction"] == {"coulomb": list(D2R2_COULOMB), "viscous": list(D2R2_VISCOUS)}
+    assert d.friction_compensation_k_hat == D2R2_K_HAT and c["encoder_resolution"] == D2R2_THETA_M
+    assert d.torque_limits == (D2R2_TORQUE_LIMIT,) * 2
 
 
 def test_plausibility_quotes_the_description(tmp_path):
