@@ -33,21 +33,17 @@ from typing import Any, Callable
 import numpy as np
 from pydrake.systems.analysis import ResetIntegratorFromFlags, Simulator
 from pydrake.systems.framework import DiagramBuilder
-from pydrake.systems.primitives import Adder, ConstantVectorSource, LogVectorOutput, Saturation
+from pydrake.systems.primitives import ConstantVectorSource, LogVectorOutput, Saturation
 
+from robust_drake.description import describe
 from robust_drake.divergence import STATE_LIMIT, TRACKING_ERROR_LIMIT, is_diverged
 from robust_drake.errors import RobustDrakeError
 from robust_drake.metrics import error_criteria, torque_statistics
 from robust_drake.models import ArmSpec, ROBOTS, add_arm, get_arm, set_d2r2_theta
-from robust_drake.registry import BuildContext, block_label, is_block_spec, make_block
-from robust_drake.systems.friction import (
-    D2R2_COULOMB,
-    D2R2_K_HAT,
-    D2R2_VISCOUS,
-    CoulombViscousFriction,
-    FixedFrictionCompensation,
-)
-from robust_drake.systems.sensors import D2R2_THETA_M, QuantizingEncoder, quantize
+from robust_drake.registry import BuildContext, block_label, is_block_spec, make_block, resolve
+from robust_drake.systems.forces import add_force_blocks, sum_into_plant
+from robust_drake.systems.friction import CoulombViscousFriction, FixedFrictionCompensation
+from robust_drake.systems.sensors import QuantizingEncoder, quantize
 from robust_drake.trajectories import ReferenceTrajectory, make_reference
 
 MAX_INTEGRATOR_STEP = 4e-4  # s; the plant is integrated with steps no longer than this
@@ -93,12 +89,12 @@ class ClosedLoopConfig:
     contract", checked by :func:`robust_drake.registry.check_ports` (the error names the
     missing port). ``to_dict`` records a custom block as ``"custom:<name>"``.
     ``plant_friction``: ``{"coulomb": [...], "viscous": [...]}`` for the plant-side
-    Coulomb + viscous block, None for a frictionless plant; the default is the D2R2 values
-    for the D2R2 and None for other robots. ``friction_compensation`` adds the fixed JS
+    Coulomb + viscous block, None for a frictionless plant; the default is the robot description's
+    (``robust_drake.description``; the D2R2's values for the D2R2, None for robots without one). ``friction_compensation`` adds the fixed JS
     eqs. 89-90 term (``compensation_params={"k_hat": [...]}``). ``encoder_resolution``
-    [rad] quantises the measured position (None: exact); default theta_m of the D2R2 for
-    the D2R2, None otherwise. ``torque_limit`` [N m] saturates the command (None: no
-    limit); default 31.2 N m for the D2R2. ``true_theta`` sets the D2R2 plant's eq. 14
+    [rad] quantises the measured position (None: exact); default from the description (theta_m
+    for the D2R2). ``torque_limit`` [N m] saturates the command (None: no limit); default the
+    description's torque limits when it says ``saturate`` (31.2 N m for the D2R2). ``true_theta`` sets the D2R2 plant's eq. 14
     parameters (Monte Carlo "true" arm). ``effects`` are extra plant-side blocks: each a
     registry name with params ``(name, {params})`` or a callable ``f(ctx) -> LeafSystem``
     with input ``state`` (and optionally ``tau``) and output ``generalized_force``.
@@ -144,15 +140,9 @@ class ClosedLoopConfig:
     def resolved(self) -> "ClosedLoopConfig":
         """A copy with the robot-dependent defaults filled in and inputs checked."""
         c = ClosedLoopConfig(**{k: getattr(self, k) for k in self.__dataclass_fields__})
-        d2r2 = str(c.robot).startswith("d2r2")
-        if c.plant_friction is _DEFAULT:
-            c.plant_friction = {"coulomb": list(D2R2_COULOMB), "viscous": list(D2R2_VISCOUS)} if d2r2 else None
-        if c.encoder_resolution is _DEFAULT:
-            c.encoder_resolution = D2R2_THETA_M if d2r2 else None
-        if c.torque_limit is _DEFAULT:
-            arm = ROBOTS.get(c.robot)
-            lim = arm.torque_limits if arm is not None and arm.torque_limits else None
-            c.torque_limit = list(lim) if (lim is not None and d2r2) else None
+        for name, value in describe(c.robot).closed_loop_defaults().items():
+            if getattr(c, name) is _DEFAULT:
+                setattr(c, name, value)
         if c.duration is not None:
             check_run_size(c.duration, c.rate)
         return c
@@ -292,24 +282,46 @@ def _vector(x, n, what):
 
 
 class ClosedLoop:
-    """A built closed-loop Diagram and what is needed to run it repeatedly."""
+    """A built closed-loop Diagram and what is needed to run it repeatedly.
+
+    Built in the order of the signal flow (module docstring): plant (``models.add_arm``),
+    reference, optional flexibility, encoder, observer, controller, command chain (fixed friction
+    compensation, saturation), plant-side forces (``systems.forces``), loggers."""
 
     def __init__(self, config: ClosedLoopConfig):
         self.config = config.resolved()
         c = self.config
         builder = DiagramBuilder()
+        self.builder = builder
         self.plant, self.scene_graph = add_arm(builder, c.robot, c.load)
-        plant = self.plant
-        n = plant.num_velocities()
-        if plant.num_positions() != n:
+        n = self.plant.num_velocities()
+        if self.plant.num_positions() != n:
             raise RobustDrakeError("only arms with one position per velocity (revolute/prismatic joints) are supported")
         self.n = n
         self.arm = _arm_for(c.robot, n)
         self.period = 1.0 / float(c.rate)
-        ctx = BuildContext(robot=str(c.robot), arm=self.arm, load=c.load, n=n, period=self.period, config=c)
-        self.build_context = ctx
+        self.build_context = BuildContext(robot=str(c.robot), arm=self.arm, load=c.load, n=n,
+                                          period=self.period, config=c)
+        x_d = self._add_reference()
+        self.flexibility = None
+        if c.flexibility is not None:  # drive / structural flexibility (None: rigid arm)
+            from robust_drake.systems.flexibility import add_flexibility
 
-        # reference
+            self.flexibility = add_flexibility(builder, self.plant, c.flexibility, n)
+        q_meas = self._add_encoder()
+        obs = self._add_observer(q_meas, x_d)
+        u = self._add_controller(x_d, q_meas, obs)
+        tau = self._add_command_chain(u, obs)
+        self._add_plant_forces(tau)
+        if self.plant.num_actuators() > 0:
+            zero = builder.AddSystem(ConstantVectorSource(np.zeros(self.plant.num_actuators())))
+            builder.Connect(zero.get_output_port(0), self.plant.get_actuation_input_port())
+        self._add_logs(x_d, u, tau, obs)
+        self.diagram = None
+
+    def _add_reference(self):
+        """The reference source; returns its ``x_d`` port."""
+        c, builder = self.config, self.builder
         try:
             self.reference = make_reference(self.arm, c.trajectory, **dict(c.trajectory_params))
         except (TypeError, ValueError) as exc:
@@ -317,39 +329,38 @@ class ClosedLoop:
             raise RobustDrakeError(
                 f"trajectory {c.trajectory!r} with parameters {dict(c.trajectory_params)!r}: {msg}") from None
         check_run_size(c.duration or self.reference.duration, c.rate)
-        if self.reference.n != n:
-            raise RobustDrakeError(f"trajectory {c.trajectory!r} has {self.reference.n} joints, robot has {n}")
+        if self.reference.n != self.n:
+            raise RobustDrakeError(f"trajectory {c.trajectory!r} has {self.reference.n} joints, robot has {self.n}")
         src = builder.AddSystem(ReferenceTrajectory(self.reference, self.period))
         self.reference_source = src
         src.set_name("reference")
-        x_d = src.get_output_port(0)
+        return src.get_output_port(0)
 
-        # drive / structural flexibility (None: rigid arm)
-        self.flexibility = None
-        if c.flexibility is not None:
-            from robust_drake.systems.flexibility import add_flexibility
-
-            self.flexibility = add_flexibility(builder, plant, c.flexibility, n)
-
-        # sensor
-        enc = builder.AddSystem(QuantizingEncoder(n, c.encoder_resolution))
+    def _add_encoder(self):
+        """The quantising encoder on the plant (or the flexible drive's encoder side)."""
+        builder, plant = self.builder, self.plant
+        enc = builder.AddSystem(QuantizingEncoder(self.n, self.config.encoder_resolution))
         enc.set_name("encoder")
         builder.Connect(plant.get_state_output_port() if self.flexibility is None
                         else self.flexibility.encoder_state, enc.get_input_port(0))
-        q_meas = enc.get_output_port(0)
         self.encoder = enc
+        return enc.get_output_port(0)
 
-        # observer
-        obs = builder.AddSystem(_make_block("observer", c.observer, ctx, c.observer_params))
+    def _add_observer(self, q_meas, x_d):
+        c, builder = self.config, self.builder
+        obs = builder.AddSystem(_make_block("observer", c.observer, self.build_context, c.observer_params))
         obs.set_name("observer")
         self.observer = obs
         builder.Connect(q_meas, obs.GetInputPort("q"))
         builder.Connect(x_d, obs.GetInputPort("x_d"))
         if obs.HasInputPort("state"):
-            builder.Connect(plant.get_state_output_port(), obs.GetInputPort("state"))
+            builder.Connect(self.plant.get_state_output_port(), obs.GetInputPort("state"))
+        return obs
 
-        # controller (+ fixed friction compensation) + saturation
-        ctrl = builder.AddSystem(_make_block("controller", c.controller, ctx, c.controller_params))
+    def _add_controller(self, x_d, q_meas, obs):
+        """The controller (with its feedforward terms); returns its ``u`` port."""
+        c, builder = self.config, self.builder
+        ctrl = builder.AddSystem(_make_block("controller", c.controller, self.build_context, c.controller_params))
         ctrl.set_name("controller")
         self.controller = ctrl
         builder.Connect(x_d, ctrl.GetInputPort("x_d"))
@@ -360,12 +371,18 @@ class ClosedLoop:
             if not hasattr(ctrl, "add_feedforward"):
                 raise RobustDrakeError(f"controller {block_label(c.controller)!r} does not accept feedforward terms")
             ctrl.add_feedforward(f)
-        u = ctrl.GetOutputPort("u")
+        return ctrl.GetOutputPort("u")
+
+    def _add_command_chain(self, u, obs):
+        """u -> [fixed friction compensation, JS eqs. 89-90] -> [saturation]; returns tau."""
+        c, builder, n = self.config, self.builder, self.n
         self.compensation = None
+        u_cmd = u
         if c.friction_compensation:
             params = dict(c.compensation_params)
-            if not params and str(c.robot).startswith("d2r2"):
-                params = {"k_hat": list(D2R2_K_HAT)}
+            k_hat = describe(c.robot).friction_compensation_k_hat
+            if not params and k_hat is not None:
+                params = {"k_hat": list(k_hat)}
             if "k_hat" not in params:
                 raise RobustDrakeError("friction_compensation needs compensation_params={'k_hat': [...]} for this robot")
             comp = builder.AddSystem(FixedFrictionCompensation(n, **params))
@@ -381,8 +398,7 @@ class ClosedLoop:
             builder.Connect(v_src, comp.GetInputPort("v"))
             u_cmd = comp.get_output_port(0)
             self.compensation = comp
-        else:
-            u_cmd = u
+        tau = u_cmd
         if c.torque_limit is not None:
             lim = _vector(c.torque_limit, n, "torque_limit")
             if np.any(lim <= 0):
@@ -391,49 +407,37 @@ class ClosedLoop:
             sat.set_name("saturation")
             builder.Connect(u_cmd, sat.get_input_port(0))
             tau = sat.get_output_port(0)
-        else:
-            tau = u_cmd
         self.tau_port = tau
         if obs.HasInputPort("tau"):
             builder.Connect(tau, obs.GetInputPort("tau"))
+        return tau
 
-        # plant-side forces: applied torque + friction + effects
+    def _add_plant_forces(self, tau):
+        """tau (through the flexible drive if any) + plant friction + effect blocks, summed into
+        the plant by the one force path (:mod:`robust_drake.systems.forces`)."""
+        c, builder, plant, n = self.config, self.builder, self.plant, self.n
         forces = [tau] if self.flexibility is None else self.flexibility.forces(builder, tau)
         self.effect_blocks = []
         if c.plant_friction is not None:
-            fr = builder.AddSystem(CoulombViscousFriction(n, c.plant_friction["coulomb"], c.plant_friction["viscous"]))
+            fr = CoulombViscousFriction(n, c.plant_friction["coulomb"], c.plant_friction["viscous"])
             fr.set_name("plant_friction")
             self.effect_blocks.append(fr)
         for i, eff in enumerate(c.effects):
             if callable(eff):
-                block = eff(ctx)
+                block = eff(self.build_context)
             else:
                 name, params = (eff[0], eff[1]) if len(eff) > 1 else (eff[0], {})
-                block = _make_block("plant_effect", name, ctx, params)
-            block = builder.AddSystem(block)
+                block = _make_block("plant_effect", name, self.build_context, params)
             block.set_name(f"effect_{i}_{block.get_name() or type(block).__name__}")
             self.effect_blocks.append(block)
-        for block in self.effect_blocks:
-            builder.Connect(plant.get_state_output_port(), block.GetInputPort("state"))
-            if block.HasInputPort("tau"):
-                builder.Connect(tau, block.GetInputPort("tau"))
-            forces.append(block.GetOutputPort("generalized_force"))
-        if len(forces) > 1:
-            add = builder.AddSystem(Adder(len(forces), n))
-            add.set_name("force_sum")
-            for i, f in enumerate(forces):
-                builder.Connect(f, add.get_input_port(i))
-            builder.Connect(add.get_output_port(0), plant.get_applied_generalized_force_input_port())
-        else:
-            builder.Connect(forces[0], plant.get_applied_generalized_force_input_port())
-        if plant.num_actuators() > 0:
-            zero = builder.AddSystem(ConstantVectorSource(np.zeros(plant.num_actuators())))
-            builder.Connect(zero.get_output_port(0), plant.get_actuation_input_port())
+        forces += add_force_blocks(builder, plant, self.effect_blocks, tau)
+        sum_into_plant(builder, plant, forces)
 
-        # loggers at the sample rate
-        T = self.period
+    def _add_logs(self, x_d, u, tau, obs):
+        """Loggers at the sample rate."""
+        T, builder = self.period, self.builder
         self._logs = {
-            "state": LogVectorOutput(plant.get_state_output_port(), builder, T),
+            "state": LogVectorOutput(self.plant.get_state_output_port(), builder, T),
             "x_d": LogVectorOutput(x_d, builder, T),
             "u": LogVectorOutput(u, builder, T),
             "tau": LogVectorOutput(tau, builder, T),
@@ -441,8 +445,6 @@ class ClosedLoop:
         if obs.HasOutputPort("v_sampled"):
             self._logs["v_hat"] = LogVectorOutput(obs.GetOutputPort("v_sampled"), builder, T)
         self.extra_logs = {}
-        self.builder = builder
-        self.diagram = None
 
     def add_log(self, name: str, port) -> None:
         """Log another output port at the sample rate (before the first run)."""
@@ -475,7 +477,7 @@ class ClosedLoop:
         plant.SetPositions(plant_context, q0)
         plant.SetVelocities(plant_context, np.zeros(n))
         if c.true_theta is not None:
-            if not str(c.robot).startswith("d2r2"):
+            if describe(c.robot).closed_form_regressor != "d2r2":
                 raise RobustDrakeError("true_theta is defined for the D2R2 (JS eq. 14); use plant_setup for other robots")
             set_d2r2_theta(plant, plant_context, np.asarray(c.true_theta, dtype=float))
         for setup in c.plant_setup:

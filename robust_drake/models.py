@@ -14,6 +14,9 @@ environment variable ``ROBUST_DRAKE_MODELS``.  Conventions shared by all files:
   (``<transmission>`` with ``drake:rotor_inertia`` and ``drake:gear_ratio``), so the plant's mass
   matrix contains ``kr^2 Ir`` on the diagonal.
 
+The named robots (:data:`ROBOTS`) are the robot descriptions shipped beside the URDFs
+(``robots/<name>.yaml``, :mod:`robust_drake.description`).
+
 D2R2 numbers (Jaritz & Spong, seeds/001, appendix): tables 8, 9, 11 and eq. 93.  The link
 lengths are not printed; see ``models/d2r2.urdf`` and BUILD_NOTES.md ("Models and regressors")
 for the derivation of l1 = l2 = 0.30 m.
@@ -22,10 +25,12 @@ for the derivation of l1 = l2 = 0.30 m.
 from __future__ import annotations
 
 import importlib.resources
+import logging
 import math
 import os
 import pathlib
 from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 
@@ -36,6 +41,7 @@ __all__ = [
     "ROBOTS",
     "ArmSpec",
     "get_arm",
+    "packaged_models_dir",
     "models_dir",
     "resolve_urdf",
     "make_plant",
@@ -91,98 +97,26 @@ class ArmSpec:
 
 D2R2_TORQUE_LIMIT = 31.2  # N m, JS section 1 (+-8 V command, Compumotor DM1015-B)
 
-ROBOTS: dict[str, ArmSpec] = {
-    "d2r2": ArmSpec(
-        name="d2r2",
-        urdf="d2r2.urdf",
-        n=2,
-        link_lengths=(0.30, 0.30),
-        gravity=False,
-        plane="horizontal",
-        loads={"none": "d2r2.urdf", "max": "d2r2_loaded.urdf"},
-        description=(
-            "Jaritz & Spong D2R2 two-link direct-drive arm, horizontal plane; theta (eq. 14) = "
-            "table 8 unloaded, table 9 with the maximum load (eq. 93) welded to link 2"
-        ),
-        torque_limits=(D2R2_TORQUE_LIMIT, D2R2_TORQUE_LIMIT),
-    ),
-    "imi_scara": ArmSpec(
-        name="imi_scara",
-        urdf="imi_scara.urdf",
-        n=2,
-        link_lengths=(0.359, 0.24),
-        gravity=False,
-        plane="horizontal",
-        loads={"none": "imi_scara.urdf"},
-        description=(
-            "Calafiore & Indri IMI SCARA, horizontal plane; inertial part of the section 5.1 "
-            "central estimate theta0 where physically realisable (friction not in the URDF)"
-        ),
-    ),
-    "siciliano_2link": ArmSpec(
-        name="siciliano_2link",
-        urdf="siciliano_2link.urdf",
-        n=2,
-        link_lengths=(1.0, 1.0),
-        gravity=True,
-        plane="vertical",
-        loads={"none": "siciliano_2link.urdf"},
-        description=(
-            "Bascetta & Rocco case study (Sciavicco & Siciliano two-link arm): 50 kg links, "
-            "5 kg motors, rotor inertia 0.01 kg m^2, gear ratio 100, vertical plane"
-        ),
-    ),
-    "dfki_double_pendulum_c1": ArmSpec(
-        name="dfki_double_pendulum_c1",
-        urdf="dfki_double_pendulum_c1.urdf",
-        n=2,
-        link_lengths=(0.2, 0.3),
-        gravity=True,
-        plane="vertical",
-        loads={"none": "dfki_double_pendulum_c1.urdf"},
-        description=(
-            "DFKI RIC double pendulum, design C.1 (data in ../shared/data/dfki_double_pendulum), "
-            "q = 0 hanging down; inertias from the lab's dfki_model_1.0.yml"
-        ),
-        torque_limits=(12.0, 12.0),
-    ),
-    "dfki_double_pendulum_a0": ArmSpec(
-        name="dfki_double_pendulum_a0",
-        urdf="dfki_double_pendulum_a0.urdf",
-        n=2,
-        link_lengths=(0.3, 0.2),
-        gravity=True,
-        plane="vertical",
-        loads={"none": "dfki_double_pendulum_a0.urdf"},
-        description=(
-            "DFKI RIC double pendulum, design A.0 (l1 = 0.3 m, l2 = 0.2 m); no lab parameter file, "
-            "inertias scaled from design C.1"
-        ),
-        torque_limits=(12.0, 12.0),
-    ),
-    "serial7": ArmSpec(
-        name="serial7",
-        urdf="serial7.urdf",
-        n=7,
-        link_lengths=(0.2025, 0.2045, 0.2155, 0.18558, 0.2155, 0.08638, 0.126),  # joint-to-joint offsets
-        gravity=True,
-        plane=None,
-        loads={"none": "serial7.urdf"},
-        description="7-link serial test arm (iiwa-like axes, gravity, geared joints) for regressor speed",
-    ),
-    "panda": ArmSpec(
-        name="panda",
-        urdf="panda.urdf",
-        n=7,
-        link_lengths=(0.333, 0.0, 0.316, 0.0825, 0.384, 0.0, 0.088),  # joint-to-joint offsets (modified DH)
-        gravity=True,
-        plane=None,
-        loads={"none": "panda.urdf"},
-        description=("Franka Emika Panda (no hand): link inertias of Gaz et al., IEEE RA-L 2019; limits from "
-                     "Franka's interface specifications"),
-        torque_limits=(87.0, 87.0, 87.0, 87.0, 12.0, 12.0, 12.0),
-    ),
-}
+
+def packaged_models_dir() -> pathlib.Path:
+    """The shipped ``robust_drake/robots`` folder (URDFs and robot descriptions)."""
+    return _DEFAULT_MODELS_DIR
+
+
+def _named_robots() -> dict[str, ArmSpec]:
+    """One :class:`ArmSpec` per shipped robot description (``robots/<name>.yaml``, see
+    :mod:`robust_drake.description`)."""
+    from robust_drake.description import packaged_descriptions
+
+    return {d.name: ArmSpec(name=d.name, urdf=d.urdf, n=d.n, link_lengths=d.link_lengths,
+                            gravity=d.gravity, plane=d.plane, loads=dict(d.loads),
+                            description=d.summary, torque_limits=d.torque_limits)
+            for d in packaged_descriptions(_DEFAULT_MODELS_DIR)}
+
+
+#: The named robots, read from the shipped descriptions (d2r2, imi_scara, siciliano_2link,
+#: dfki_double_pendulum_c1/_a0, serial7).
+ROBOTS: dict[str, ArmSpec] = _named_robots()
 
 
 def get_arm(name: str) -> ArmSpec:
@@ -216,7 +150,7 @@ def resolve_urdf(robot: str | os.PathLike, load: str = "none") -> pathlib.Path:
                 f"URDF for robot {text!r} (load {load!r}) not found at {path}; {hint}"
             )
         return path
-    if text.endswith(".urdf"):
+    if text.endswith((".urdf", ".sdf")):
         path = pathlib.Path(text).expanduser()
         if not path.is_file():
             raise RobustDrakeError(f"URDF file {path} does not exist")
@@ -226,8 +160,15 @@ def resolve_urdf(robot: str | os.PathLike, load: str = "none") -> pathlib.Path:
             )
         return path.resolve()
     raise RobustDrakeError(
-        f"unknown robot {text!r}: give one of {', '.join(sorted(ROBOTS))} or a path to a .urdf file"
+        f"unknown robot {text!r}: give one of {', '.join(sorted(ROBOTS))} or a path to a .urdf/.sdf file"
     )
+
+
+#: Joint types an arm may have (Drake's names; a URDF ``continuous`` joint is a ``revolute`` one).
+SUPPORTED_JOINT_TYPES = ("revolute", "prismatic", "weld")
+
+_log = logging.getLogger("robust_drake.models")
+_WELD_REPORTED: set = set()
 
 
 def _parse_into(plant, robot, load):
@@ -235,33 +176,89 @@ def _parse_into(plant, robot, load):
 
     path = resolve_urdf(robot, load)
     try:
-        Parser(plant).AddModels(str(path))
+        instances = Parser(plant).AddModels(str(path))
     except RuntimeError as exc:  # Drake parser errors
         raise RobustDrakeError(f"could not parse {path}: {exc}") from exc
-    return path
+    return path, instances
 
 
-def make_plant(robot: str, load: str = "none", time_step: float = 0.0, *,
-               use_sampled_output_ports: bool = False):
-    """A finalized, standalone ``MultibodyPlant`` of ``robot`` (no SceneGraph).
+def _root_bodies(plant, instances):
+    """Bodies of the parsed model instances with no joint to a parent (pre-Finalize)."""
+    children = {plant.get_joint(j).child_body().index() for j in plant.GetJointIndices()}
+    return [b for mi in instances for b in (plant.get_body(i) for i in plant.GetBodyIndices(mi))
+            if b.index() not in children]
 
-    Gravity is Drake's default (world -z, 9.81 m/s^2); horizontal arms have their joint axes
-    along world z so gravity produces no joint torque.  For a discrete plant (time_step > 0)
-    the sampled output ports are switched off by default (see the pydrake pitfalls notes).
-    """
-    from pydrake.multibody.plant import MultibodyPlant
 
-    plant = MultibodyPlant(time_step=float(time_step))
-    _parse_into(plant, robot, load)
+def _weld_roots(plant, instances, path, floating_base: bool) -> None:
+    """Weld the model's root link to the world (a URDF without a world joint), unless a floating
+    base is asked for.  More than one root (a ``floating`` URDF joint leaves a free body, or
+    disconnected links) is refused: which body is the base would be a guess."""
+    roots = _root_bodies(plant, instances)
+    if floating_base or not roots:
+        return
+    if len(roots) > 1:
+        raise RobustDrakeError(
+            f"{path}: links {', '.join(repr(b.name()) for b in roots)} have no joint to a parent "
+            "(a 'floating' joint or disconnected links); an arm needs one tree rooted at its base")
+    plant.WeldFrames(plant.world_frame(), roots[0].body_frame())
+    if str(path) not in _WELD_REPORTED:
+        _WELD_REPORTED.add(str(path))
+        _log.warning("%s: root link %r has no joint to the world; welded to it "
+                     "(make_plant(..., floating_base=True) for a floating base)", path, roots[0].name())
+
+
+def _check_joints(plant, path, floating_base: bool) -> None:
+    """RobustDrakeError naming the first joint that is not revolute/prismatic/fixed (a floating
+    base joint to the world is accepted when ``floating_base``)."""
+    for ji in plant.GetJointIndices():
+        j = plant.get_joint(ji)
+        if j.type_name() in SUPPORTED_JOINT_TYPES:
+            continue
+        if floating_base and j.parent_body().index() == plant.world_body().index():
+            continue
+        raise RobustDrakeError(
+            f"{path}: joint {j.name()!r} is a {j.type_name()} joint; supported are revolute "
+            "(URDF revolute/continuous), prismatic and fixed joints")
+
+
+def _populate(plant, robot, load, time_step, before_finalize, floating_base,
+              use_sampled_output_ports):
+    """The one loading sequence: parse, hook, weld the root, finalize, check the joints."""
+    path, instances = _parse_into(plant, robot, load)
+    if before_finalize is not None:
+        before_finalize(plant)
+    _weld_roots(plant, instances, path, floating_base)
     if time_step > 0 and not use_sampled_output_ports:
         plant.SetUseSampledOutputPorts(False)
     plant.Finalize()
+    _check_joints(plant, path, floating_base)
     return plant
 
 
+def make_plant(robot: str, load: str = "none", time_step: float = 0.0, *,
+               before_finalize: Callable | None = None, floating_base: bool = False,
+               use_sampled_output_ports: bool = False):
+    """A finalized, standalone ``MultibodyPlant`` of ``robot`` (no SceneGraph).
+
+    ``robot`` is a name in :data:`ROBOTS` or a URDF/SDF path.  ``before_finalize(plant)`` is
+    called after parsing and before ``Finalize()`` (add bodies, weld a payload, ...).  A root
+    link without a joint to the world is welded to it (one logged message per file) unless
+    ``floating_base``; joints other than revolute/prismatic/fixed raise RobustDrakeError naming
+    the joint.  Gravity is Drake's default (world -z, 9.81 m/s^2); horizontal arms have their
+    joint axes along world z so gravity produces no joint torque.  For a discrete plant
+    (time_step > 0) the sampled output ports are switched off by default (see the pydrake
+    pitfalls notes).
+    """
+    from pydrake.multibody.plant import MultibodyPlant
+
+    return _populate(MultibodyPlant(time_step=float(time_step)), robot, load, time_step,
+                     before_finalize, floating_base, use_sampled_output_ports)
+
+
 def add_arm(builder, robot: str, load: str = "none", time_step: float = 0.0, *,
+            before_finalize: Callable | None = None, floating_base: bool = False,
             use_sampled_output_ports: bool = False):
-    """Add ``robot`` to a ``DiagramBuilder`` with ``AddMultibodyPlantSceneGraph``.
+    """:func:`make_plant` added to a ``DiagramBuilder`` with ``AddMultibodyPlantSceneGraph``.
 
     Returns ``(plant, scene_graph)``; the plant is finalized.  Actuation input port
     ``plant.get_actuation_input_port()`` has one entry per joint (motor1..motorn, in joint
@@ -270,10 +267,7 @@ def add_arm(builder, robot: str, load: str = "none", time_step: float = 0.0, *,
     from pydrake.multibody.plant import AddMultibodyPlantSceneGraph
 
     plant, scene_graph = AddMultibodyPlantSceneGraph(builder, time_step=float(time_step))
-    _parse_into(plant, robot, load)
-    if time_step > 0 and not use_sampled_output_ports:
-        plant.SetUseSampledOutputPorts(False)
-    plant.Finalize()
+    _populate(plant, robot, load, time_step, before_finalize, floating_base, use_sampled_output_ports)
     return plant, scene_graph
 
 

@@ -31,6 +31,7 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
+from robust_drake.description import describe
 from robust_drake.errors import RobustDrakeError
 from robust_drake.scenario import Scenario
 
@@ -278,7 +279,7 @@ def montecarlo_scenarios(robot: str, controllers: Sequence[str], thetas,
                      controller_params=dict((controller_params or {}).get(c, {})))
             if tags is not None:
                 d["tags"] = dict(tags[i])
-            if robot.startswith("d2r2"):
+            if describe(robot).closed_form_regressor == "d2r2":  # JS eq. 14 parameters
                 d["true_theta"] = [float(x) for x in th]
             elif robot == "imi_scara":
                 extra = dict(d.get("extra", {}))

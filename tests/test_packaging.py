@@ -109,9 +109,10 @@ def test_named_urdfs_are_package_data():
             seen.add(path.name)
     # nothing shipped that no robot uses, nothing used that is not shipped
     assert seen == {p.name for p in pkg.glob("*.urdf")}
-    # pyproject ships exactly that folder as package data
+    # pyproject ships exactly that folder (URDFs and their robot descriptions) as package data
     text = (REPO / "pyproject.toml").read_text()
-    assert 'robust_drake = ["robots/*.urdf"]' in text
+    assert 'robust_drake = ["robots/*.urdf", "robots/*.yaml"]' in text
+    assert {p.stem for p in pkg.glob("*.yaml")} == set(ROBOTS)  # one description per named robot
 
 
 def test_top_level_models_is_the_packaged_folder():

@@ -39,7 +39,9 @@ def run(args) -> int:
         raise RobustDrakeError(f"--rate must be positive (got {args.rate})")
     flex = None
     if args.flexible:
-        if not str(args.robot).startswith("d2r2"):
+        from robust_drake.description import describe
+
+        if describe(args.robot).flexibility != "d2r2":
             raise RobustDrakeError("--flexible has parameters for the D2R2 only (use ClosedLoopConfig.flexibility for other arms)")
         from robust_drake.systems.flexibility import d2r2_flexibility
 

@@ -659,33 +659,24 @@ def _payload_plant(robot, tool_position):
 
 
 def load_plant(robot, effects=(), time_step=0.0, builder=None):
-    """Parse ``robot`` (a name known to ``robust_drake.models`` or a URDF/SDF path), apply the
-    plant-modifying effects [(Effect, parameters), ...] and finalise. Returns the plant (added to
-    ``builder`` with a SceneGraph when given)."""
-    from pydrake.multibody.parsing import Parser
-    from pydrake.multibody.plant import AddMultibodyPlantSceneGraph, MultibodyPlant
-    path = resolve_robot_path(robot)
+    """``robust_drake.models.make_plant`` (or ``add_arm`` into ``builder``) with the
+    plant-modifying effects [(Effect, parameters), ...] applied before ``Finalize``. Returns the
+    plant."""
+    from robust_drake.models import add_arm, make_plant
+
+    def apply(plant):
+        for eff, params in effects:
+            eff.apply_to_plant(plant, params)
+
     if builder is not None:
-        plant, _ = AddMultibodyPlantSceneGraph(builder, time_step)
-    else:
-        plant = MultibodyPlant(time_step)
-    Parser(plant).AddModels(path)
-    for eff, params in effects:
-        eff.apply_to_plant(plant, params)
-    plant.Finalize()
-    return plant
+        return add_arm(builder, robot, time_step=time_step, before_finalize=apply)[0]
+    return make_plant(robot, time_step=time_step, before_finalize=apply)
 
 
 def resolve_robot_path(robot) -> str:
-    import os
-    s = str(robot)
-    if os.path.exists(s):
-        return s
-    try:
-        from robust_drake.models import resolve_urdf
-    except ImportError as exc:  # models not there yet
-        raise RobustDrakeError(f"unknown robot {robot!r} (not a file, and robust_drake.models "
-                               f"is unavailable: {exc})") from exc
+    """Path of ``robot``'s model file (``robust_drake.models.resolve_urdf``)."""
+    from robust_drake.models import resolve_urdf
+
     return str(resolve_urdf(robot))
 
 
@@ -816,29 +807,24 @@ def all_candidates(n_joints: int, kinds=None, **context) -> list[Effect]:
 # ---------------------------------------------------------------------------------------------
 # Diagram helpers (used by the experiment generator and by replay)
 # ---------------------------------------------------------------------------------------------
-def add_effect_blocks(builder, plant, tau_port, effects, sample_period=None):
-    """Connect ``tau_port`` (commanded torque, n) plus every force-type effect block into the
-    plant's ``applied_generalized_force`` input. ``effects`` = [(Effect, parameters), ...];
-    plant-modifying effects must already have been applied (``load_plant(robot, effects)``).
-    Returns the list of added blocks."""
-    from pydrake.systems.primitives import Adder
-    n = plant.num_velocities()
-    blocks = []
-    for eff, params in effects:
-        blk = eff.block(n, params, sample_period=sample_period)
-        if blk is None:
-            continue
-        builder.AddSystem(blk)
-        builder.Connect(plant.get_state_output_port(), blk.GetInputPort("state"))
-        if blk.HasInputPort("tau"):
-            builder.Connect(tau_port, blk.GetInputPort("tau"))
-        blocks.append(blk)
-    adder = builder.AddSystem(Adder(1 + len(blocks), n))
-    adder.set_name("applied_force_sum")
-    builder.Connect(tau_port, adder.get_input_port(0))
-    for i, blk in enumerate(blocks):
-        builder.Connect(blk.GetOutputPort("generalized_force"), adder.get_input_port(i + 1))
-    builder.Connect(adder.get_output_port(0), plant.get_applied_generalized_force_input_port())
+def effect_force_blocks(effects, n, sample_period=None) -> list:
+    """The force blocks of ``effects`` = [(Effect, parameters), ...] for an n-joint plant, in
+    order (plant-modifying effects have none)."""
+    blocks = [eff.block(n, params, sample_period=sample_period) for eff, params in effects]
+    return [b for b in blocks if b is not None]
+
+
+def add_effect_blocks(builder, plant, tau_port, effects, sample_period=None, extra_blocks=()):
+    """Connect ``tau_port`` (commanded torque, n) plus every force-type effect block (then the
+    already built ``extra_blocks``) into the plant's ``applied_generalized_force`` input through
+    :func:`robust_drake.systems.forces.sum_into_plant`. ``effects`` = [(Effect, parameters),
+    ...]; plant-modifying effects must already have been applied (``load_plant(robot,
+    effects)``). Returns the list of added blocks."""
+    from robust_drake.systems.forces import add_force_blocks, sum_into_plant
+
+    blocks = effect_force_blocks(effects, plant.num_velocities(), sample_period) + list(extra_blocks)
+    ports = add_force_blocks(builder, plant, blocks, tau_port)
+    sum_into_plant(builder, plant, [tau_port] + ports, name="applied_force_sum")
     return blocks
 
 

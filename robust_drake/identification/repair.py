@@ -86,33 +86,42 @@ def _friction(fit, n):
 
 # physical plausibility of an identified effect, generic + hardware-aware where we know it
 def plausibility(kind: str, params: dict, robot: str) -> str:
-    dfki = "dfki" in str(robot)
+    from robust_drake.description import describe
+
+    hw = describe(robot)  # hardware facts quoted below come from the robot's description
+    motor = hw.motor or "motor"
+    gear = hw.geared and hw.gearbox is not None
     p = {k: v for k, v in params.items() if isinstance(v, (int, float))}
     if kind == "load_dependent_friction":
         mu = p.get("load_coefficient", np.nan)
         txt = (f"gear friction growing with transmitted torque, mu = {mu:.3g}; a planetary stage "
                "loses a few to ~20 % of the load torque")
-        if dfki:
-            txt += " (AK80-6: 6:1 planetary gear between rotor and joint)"
+        if gear:
+            txt += f" ({motor}: {hw.gear_ratio:g}:1 {hw.gearbox} gear between rotor and joint)"
         return txt + ("" if 0 < mu < 0.5 else "; NOTE: outside the usual 0-0.5 range")
     if kind == "rotor_inertia":
         J = p.get("reflected_inertia", np.nan)
         txt = f"reflected rotor inertia {J:.3g} kg m^2"
-        if dfki:
-            txt += f" (AK80-6: gr^2 Ir = 36 x 6.07e-5 = {36 * 6.07e-5:.3g} kg m^2)"
+        if hw.geared and hw.rotor_inertia is not None:
+            gr2 = hw.gear_ratio ** 2
+            m, e = f"{hw.rotor_inertia:.3g}".partition("e")[::2]
+            ir = f"{m}e{int(e)}" if e else m
+            txt += f" ({motor}: gr^2 Ir = {gr2:g} x {ir} = {gr2 * hw.rotor_inertia:.3g} kg m^2)"
         return txt
+    backlash = "" if hw.backlash_deg is None else f"(about {hw.backlash_deg:g} deg on the {motor}) "
     if kind in ("stribeck", "smooth_coulomb", "asymmetric_coulomb"):
         return (f"low-velocity friction shape ({kind}); QDD motors with a single gear stage show "
                 "a smooth Coulomb transition and some breakaway; backlash "
-                + ("(about 0.15 deg on the AK80-6) " if dfki else "")
+                + backlash
                 + "adds a torque dip at every reversal")
     if kind == "presliding_friction":
         Fd, x0 = p.get("presliding_torque", np.nan), p.get("presliding_displacement", np.nan)
         txt = (f"presliding (Dahl) friction: {Fd:.3g} N m of the friction level builds up "
                f"over ~{x0:.3g} rad ({np.degrees(x0):.2g} deg) of motion after "
                "every reversal: compliance of gear teeth and bearings before gross sliding")
-        if dfki:
-            txt += " (AK80-6: 6:1 planetary stage, about 0.15 deg backlash taken up at each reversal)"
+        if gear and hw.backlash_deg is not None:
+            txt += (f" ({motor}: {hw.gear_ratio:g}:1 {hw.gearbox} stage, about {hw.backlash_deg:g} deg "
+                    "backlash taken up at each reversal)")
         return txt
     if kind == "torque_offset":
         return "constant torque bias: current-sensor offset of the driver or an unmodelled static load"

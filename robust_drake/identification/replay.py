@@ -7,8 +7,10 @@ For every window [t_k, t_k + H] (``horizon``) the plant state is reset to the me
 
 The position error q_sim - q_measured over each window is the replay error; ``before`` uses the
 baseline (rigid body + Coulomb + viscous), ``after`` the repaired model with its effect blocks
-(``effects.add_effect_blocks``). Friction in the plant uses the smooth sign tanh(qd / v_eps)
-(v_eps = ``REPLAY_V_EPS``) so an error-controlled integrator can step through reversals.
+(``effects.effect_force_blocks``), all summed by ``systems.forces.sum_into_plant``. Friction in
+the plant is ``systems.friction.CoulombViscousFriction`` with the smooth sign tanh(qd / v_eps)
+(v_eps = ``REPLAY_V_EPS`` = 0.05 rad/s) so an error-controlled integrator can step through
+reversals.
 
 Rigid-body inertias: the physically consistent estimate (``consistency``) written into the plant
 context when available; otherwise the URDF's nominal inertias (said in the result).
@@ -17,47 +19,29 @@ context when available; otherwise the URDF's nominal inertias (said in the resul
 from __future__ import annotations
 
 import numpy as np
-from pydrake.systems.framework import LeafSystem
 
 from robust_drake.identification.data import IdentData
 
 DEFAULT_HORIZON = 0.2  # s
 MAX_WINDOWS = 30
-REPLAY_V_EPS = 0.05  # rad/s
-
-
-def friction_torque(qd, coulomb, viscous, v_eps=REPLAY_V_EPS):
-    """Coulomb + viscous friction the motor must overcome (pure function)."""
-    qd = np.asarray(qd, float)
-    return np.asarray(coulomb) * np.tanh(qd / v_eps) + np.asarray(viscous) * qd
-
-
-class SmoothFriction(LeafSystem):
-    """Input ``state`` (2n), output ``generalized_force`` = -friction_torque(qd) (n)."""
-
-    def __init__(self, n, coulomb, viscous, v_eps=REPLAY_V_EPS):
-        super().__init__()
-        self.n = n
-        self.coulomb, self.viscous, self.v_eps = (np.asarray(coulomb, float), np.asarray(viscous, float), v_eps)
-        self._state = self.DeclareVectorInputPort("state", 2 * n)
-        self.DeclareVectorOutputPort("generalized_force", n, self._calc)
-        self.set_name("identified_friction")
-
-    def _calc(self, context, output):
-        qd = self._state.Eval(context)[self.n:]
-        output.SetFromVector(-friction_torque(qd, self.coulomb, self.viscous, self.v_eps))
+REPLAY_V_EPS = 0.05  # rad/s, tanh width of the replay friction (kept from the first replay code)
 
 
 def build_replay_diagram(robot, data: IdentData, coulomb, viscous, effects=(), inertias=None,
                          sample_period=None):
-    """Diagram: tau source (first-order hold of data.tau) -> [effect blocks, friction] -> plant.
+    """Diagram: tau source (first-order hold of data.tau) + friction + effect blocks -> plant,
+    through the one force path (:mod:`robust_drake.systems.forces`; effect blocks with a ``tau``
+    input see the measured torque).
 
-    ``effects`` = [(Effect, parameters), ...]; ``inertias`` = (body_names, pi) or None."""
+    ``effects`` = [(Effect, parameters), ...]; ``inertias`` = (body_names, pi) or None (set in
+    the context by :func:`replay`)."""
     from pydrake.systems.framework import DiagramBuilder
-    from pydrake.systems.primitives import Adder, TrajectorySource
+    from pydrake.systems.primitives import TrajectorySource
     from pydrake.trajectories import PiecewisePolynomial
 
-    from robust_drake.identification.effects import add_effect_blocks, load_plant
+    from robust_drake.identification.effects import effect_force_blocks, load_plant
+    from robust_drake.systems.forces import add_force_blocks, sum_into_plant
+    from robust_drake.systems.friction import CoulombViscousFriction
 
     builder = DiagramBuilder()
     plant = load_plant(robot, [(e, p) for e, p in effects if e.modifies_plant], builder=builder)
@@ -65,31 +49,11 @@ def build_replay_diagram(robot, data: IdentData, coulomb, viscous, effects=(), i
     traj = PiecewisePolynomial.FirstOrderHold(data.t, data.tau.T)
     src = builder.AddSystem(TrajectorySource(traj))
     src.set_name("measured_tau")
-    fric = builder.AddSystem(SmoothFriction(n, coulomb, viscous))
-    builder.Connect(plant.get_state_output_port(), fric.get_input_port(0))
-    # tau + friction -> effect blocks see the commanded torque only
-    sum_tf = builder.AddSystem(Adder(2, n))
-    builder.Connect(src.get_output_port(0), sum_tf.get_input_port(0))
-    builder.Connect(fric.get_output_port(0), sum_tf.get_input_port(1))
-    force_effects = [(e, p) for e, p in effects if not e.modifies_plant]
-    if force_effects:
-        blocks = []
-        for e, p in force_effects:
-            blk = e.block(n, p, sample_period=sample_period or data.dt)
-            if blk is None:
-                continue
-            builder.AddSystem(blk)
-            builder.Connect(plant.get_state_output_port(), blk.GetInputPort("state"))
-            if blk.HasInputPort("tau"):
-                builder.Connect(src.get_output_port(0), blk.GetInputPort("tau"))
-            blocks.append(blk)
-        total = builder.AddSystem(Adder(1 + len(blocks), n))
-        builder.Connect(sum_tf.get_output_port(0), total.get_input_port(0))
-        for i, blk in enumerate(blocks):
-            builder.Connect(blk.GetOutputPort("generalized_force"), total.get_input_port(i + 1))
-        builder.Connect(total.get_output_port(0), plant.get_applied_generalized_force_input_port())
-    else:
-        builder.Connect(sum_tf.get_output_port(0), plant.get_applied_generalized_force_input_port())
+    fric = CoulombViscousFriction(n, coulomb, viscous, REPLAY_V_EPS, nonnegative=False)
+    fric.set_name("identified_friction")
+    blocks = [fric] + effect_force_blocks(effects, n, sample_period or data.dt)
+    tau = src.get_output_port(0)
+    sum_into_plant(builder, plant, [tau] + add_force_blocks(builder, plant, blocks, tau))
     if plant.get_actuation_input_port().size() > 0:
         from pydrake.systems.primitives import ConstantVectorSource
 

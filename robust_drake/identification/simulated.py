@@ -1,8 +1,8 @@
 """Simulated identification experiments with known hidden effects.
 
 :func:`simulate_experiment` builds a Drake diagram of a "true" arm: the robot's URDF plant
-(continuous, error-controlled RK3), baseline friction (Coulomb with a 0.01 rad/s tanh transition
-+ viscous), any extra effect blocks from :mod:`robust_drake.identification.effects` (and the
+(continuous, error-controlled RK3), baseline friction (``systems.friction.CoulombViscousFriction``:
+Coulomb with a 0.01 rad/s tanh transition + viscous), any extra effect blocks from :mod:`robust_drake.identification.effects` (and the
 plant-modifying ones applied before ``Finalize``), driven by a PD controller tracking an exciting
 Fourier-series reference. The recorded data are sampled at ``rate_hz``: encoder-quantised joint
 angles and the commanded torque plus Gaussian measurement noise, written as a canonical CSV
@@ -33,7 +33,8 @@ from pydrake.systems.primitives import VectorLogSink
 
 from robust_drake.errors import RobustDrakeError
 from robust_drake.identification.effects import (EFFECTS, Effect, add_effect_blocks, load_plant,
-                                                  make_effect, smooth_sign)
+                                                  make_effect)
+from robust_drake.systems.friction import CoulombViscousFriction
 
 DEFAULT_ROBOT = "dfki_double_pendulum_c1"
 
@@ -112,22 +113,9 @@ class PDExcitation(LeafSystem):
         output.SetFromVector(u)
 
 
-class BaselineFriction(LeafSystem):
-    """The friction every simulated arm has (what the baseline model fits):
-    generalized_force = -(F_c tanh(qd / v_eps) + b qd)."""
-
-    def __init__(self, coulomb, viscous, v_eps=0.01):
-        super().__init__()
-        self.Fc, self.b = np.asarray(coulomb, float), np.asarray(viscous, float)
-        self.v_eps = v_eps
-        n = len(self.Fc)
-        self.n = n
-        self._state = self.DeclareVectorInputPort("state", 2 * n)
-        self.DeclareVectorOutputPort("generalized_force", n, self._calc)
-
-    def _calc(self, context, output):
-        qd = self._state.Eval(context)[self.n:]
-        output.SetFromVector(-(self.Fc * smooth_sign(qd, self.v_eps) + self.b * qd))
+#: tanh width [rad/s] of the simulated arms' baseline friction (kept from the first generator, so
+#: the simulated data do not change; the replay uses its own 0.05 rad/s)
+TRUE_FRICTION_V_EPS = 0.01
 
 
 # ---------------------------------------------------------------------------------------------
@@ -148,6 +136,58 @@ def _as_effects(effects) -> list[tuple[Effect, dict]]:
         shape = {k: params[k] for k in (cls.default_shape if cls else {}) if k in params}
         out.append((make_effect(kind, joint, **shape), params))
     return out
+
+
+@dataclass
+class Experiment:
+    """The built diagram of a simulated experiment and the handles :func:`simulate_experiment`
+    needs (the true plant, the PD excitation, the loggers)."""
+
+    diagram: object
+    plant: object
+    controller: PDExcitation
+    reference: FourierReference
+    log_x: object
+    log_u: object
+    period: float
+    n: int
+
+
+def build_experiment(robot, effects, excitation: dict, rng_ref, coulomb, viscous, rate_hz,
+                     extra_blocks=()) -> Experiment:
+    """The true arm's diagram (see the module docstring): ``robot`` with the plant-modifying
+    ``effects`` [(Effect, parameters), ...] applied before ``Finalize``, PD excitation, and the
+    plant-side forces tau + effect blocks + baseline friction (smooth sign, v_eps =
+    :data:`TRUE_FRICTION_V_EPS`) + ``extra_blocks`` through the one force path
+    (``effects.add_effect_blocks`` -> ``systems.forces.sum_into_plant``)."""
+    exc = excitation
+    builder = DiagramBuilder()
+    plant = load_plant(robot, effects, time_step=0.0, builder=builder)
+    n = plant.num_velocities()
+    amp = np.broadcast_to(np.asarray(exc["amplitude"], float), (n,))
+    ref = FourierReference.random(n, rng_ref, amp, exc["base_frequency"], exc["harmonics"],
+                                  exc["offset"])
+
+    # PD gains from the mass matrix at the reference's start (decoupled error dynamics there).
+    ctx0 = plant.CreateDefaultContext()
+    plant.SetPositions(ctx0, ref(0.0)[0])
+    M0 = plant.CalcMassMatrix(ctx0)
+    w = 2 * math.pi * exc["bandwidth_hz"]
+    ctrl = builder.AddSystem(PDExcitation(ref, M0 * w * w, 2 * 0.7 * M0 * w, exc["torque_limit"]))
+    ctrl.set_name("pd_excitation")
+    builder.Connect(plant.get_state_output_port(), ctrl.get_input_port(0))
+
+    fric = CoulombViscousFriction(n, np.broadcast_to(coulomb, (n,)), np.broadcast_to(viscous, (n,)),
+                                  TRUE_FRICTION_V_EPS, nonnegative=False)
+    fric.set_name("baseline_friction")
+    add_effect_blocks(builder, plant, ctrl.get_output_port(0), effects, sample_period=1.0 / rate_hz,
+                      extra_blocks=[fric] + [f(n) for f in extra_blocks])
+    period = 1.0 / rate_hz
+    log_x = builder.AddSystem(VectorLogSink(2 * n, period))
+    log_u = builder.AddSystem(VectorLogSink(n, period))
+    builder.Connect(plant.get_state_output_port(), log_x.get_input_port())
+    builder.Connect(ctrl.get_output_port(0), log_u.get_input_port())
+    return Experiment(builder.Build(), plant, ctrl, ref, log_x, log_u, period, n)
 
 
 def simulate_experiment(robot=DEFAULT_ROBOT, effects=(), duration=15.0, rate_hz=250.0, seed=0,
@@ -174,36 +214,10 @@ def simulate_experiment(robot=DEFAULT_ROBOT, effects=(), duration=15.0, rate_hz=
     rng_ref = np.random.default_rng(exc["seed"])
     rng_noise = np.random.default_rng(10_000 + seed)
 
-    effs = _as_effects(effects)
-    builder = DiagramBuilder()
-    plant = load_plant(robot, effs, time_step=0.0, builder=builder)
-    n = plant.num_velocities()
-    amp = np.broadcast_to(np.asarray(exc["amplitude"], float), (n,))
-    ref = FourierReference.random(n, rng_ref, amp, exc["base_frequency"], exc["harmonics"],
-                                  exc["offset"])
-
-    # PD gains from the mass matrix at the reference's start (decoupled error dynamics there).
-    ctx0 = plant.CreateDefaultContext()
-    plant.SetPositions(ctx0, ref(0.0)[0])
-    M0 = plant.CalcMassMatrix(ctx0)
-    w = 2 * math.pi * exc["bandwidth_hz"]
-    ctrl = builder.AddSystem(PDExcitation(ref, M0 * w * w, 2 * 0.7 * M0 * w, exc["torque_limit"]))
-    ctrl.set_name("pd_excitation")
-    builder.Connect(plant.get_state_output_port(), ctrl.get_input_port(0))
-
-    fric = BaselineFriction(np.broadcast_to(coulomb, (n,)), np.broadcast_to(viscous, (n,)))
-    extra = [(fric, None)] + [(f(n), None) for f in extra_blocks]
-    period = 1.0 / rate_hz
-    blocks = add_effect_blocks(builder, plant, ctrl.get_output_port(0),
-                               effs + [(_Prebuilt(b), None) for b, _ in extra],
-                               sample_period=period)
-    del blocks
-
-    log_x = builder.AddSystem(VectorLogSink(2 * n, period))
-    log_u = builder.AddSystem(VectorLogSink(n, period))
-    builder.Connect(plant.get_state_output_port(), log_x.get_input_port())
-    builder.Connect(ctrl.get_output_port(0), log_u.get_input_port())
-    diagram = builder.Build()
+    exp = build_experiment(robot, _as_effects(effects), exc, rng_ref, coulomb, viscous, rate_hz,
+                           extra_blocks)
+    diagram, plant, ref, period, n = exp.diagram, exp.plant, exp.reference, exp.period, exp.n
+    log_x, log_u = exp.log_x, exp.log_u
 
     sim = Simulator(diagram)
     root = sim.get_mutable_context()
@@ -255,19 +269,6 @@ def _add_band_noise(df, rms: float, band_hz, rate_hz: float, rng) -> None:
     for c in [c for c in df.columns if c.startswith("q") and c[1:].isdigit()]:
         x = sosfiltfilt(sos, rng.standard_normal(len(df)))
         df[c] = df[c].to_numpy() + rms * x / x.std()
-
-
-class _Prebuilt(Effect):
-    """Wraps an already built block so it goes through :func:`add_effect_blocks`."""
-
-    kind = "_prebuilt"
-
-    def __init__(self, blk):
-        super().__init__(None)
-        self._blk = blk
-
-    def block(self, n, parameters, **kw):
-        return self._blk
 
 
 # ---------------------------------------------------------------------------------------------

@@ -1,8 +1,9 @@
 """Friction acting on the plant, and its fixed compensation in the controller.
 
 Plant side: :class:`CoulombViscousFriction`, JS eq. 86 / CI eq. 16,
-F(qd) = F_v qd + F_C sgn(qd) (per joint, uncoupled), applied to the plant's generalized
-force input with a minus sign (it opposes motion). It is a block separate from the plant,
+F(qd) = F_v qd + F_C s(qd) (per joint, uncoupled) with a sharp (sgn) or smooth (tanh) sign law
+(:func:`coulomb_viscous_force`, the one friction law of the package), applied to the plant's
+generalized force input with a minus sign (it opposes motion). It is a block separate from the plant,
 with its own parameters, so a study can give the "true" plant different friction from
 what the controller assumes.
 
@@ -27,34 +28,58 @@ D2R2_VISCOUS = (0.15, 0.08)  # N m s / rad
 D2R2_K_HAT = (1.0, 2.0)  # JS section 9, eq. 90
 
 
-def coulomb_viscous_force(qd, coulomb, viscous) -> np.ndarray:
-    """JS eq. 86: F(qd) = F_v qd + F_C sgn(qd) (the torque friction takes away) [N m]."""
+def coulomb_viscous_force(qd, coulomb, viscous, v_eps=None) -> np.ndarray:
+    """JS eq. 86 / CI eq. 16: F(qd) = F_v qd + F_C s(qd), the torque friction takes away [N m].
+
+    The sign law s is sharp, s = sgn(qd) (``v_eps`` None), or smooth, s = tanh(qd / v_eps) with
+    v_eps [rad/s] the width of the transition (what an error-controlled integrator can step
+    through).  Broadcasts over the last axis (joints)."""
     qd = np.asarray(qd, dtype=float)
-    return np.asarray(viscous) * qd + np.asarray(coulomb) * np.sign(qd)
+    s = np.sign(qd) if v_eps is None else np.tanh(qd / v_eps)
+    return np.asarray(viscous) * qd + np.asarray(coulomb) * s
 
 
-def _per_joint(x, n, what):
+def _per_joint(x, n, what, nonnegative=True):
     a = np.asarray(x, dtype=float)
     a = np.full(n, float(a)) if a.ndim == 0 else a
-    if a.shape != (n,) or np.any(a < 0):
-        raise RobustDrakeError(f"{what} must be {n} non-negative numbers (got {x!r})")
+    if a.shape != (n,) or not np.all(np.isfinite(a)) or (nonnegative and np.any(a < 0)):
+        kind = "non-negative" if nonnegative else "finite"
+        raise RobustDrakeError(f"{what} must be {n} {kind} numbers (got {x!r})")
     return a
 
 
 class CoulombViscousFriction(LeafSystem):
-    """Plant-side friction: input ``state`` (2n), output ``generalized_force`` = -F(qd)."""
+    """Plant-side friction, the project's one friction block: input ``state`` (2n), output
+    ``generalized_force`` = -:func:`coulomb_viscous_force` (qd; coulomb, viscous, v_eps).
 
-    def __init__(self, n: int, coulomb, viscous):
+    ``v_eps`` None: sharp sign (the closed loop's plant, JS eq. 86).  ``v_eps`` > 0: smooth
+    sign tanh(qd / v_eps); the simulated experiments use 0.01 rad/s
+    (``identification.simulated.TRUE_FRICTION_V_EPS``), the replays 0.05 rad/s
+    (``identification.replay.REPLAY_V_EPS``).  ``nonnegative=False`` accepts identified
+    coefficients of either sign (a replay of whatever the fit returned)."""
+
+    def __init__(self, n: int, coulomb, viscous, v_eps: float | None = None, *,
+                 nonnegative: bool = True):
         super().__init__()
         self.n = int(n)
-        self.coulomb = _per_joint(coulomb, n, "Coulomb friction")
-        self.viscous = _per_joint(viscous, n, "viscous friction")
+        self.coulomb = _per_joint(coulomb, n, "Coulomb friction", nonnegative)
+        self.viscous = _per_joint(viscous, n, "viscous friction", nonnegative)
+        if v_eps is not None and not (math.isfinite(v_eps) and v_eps > 0):
+            raise RobustDrakeError(f"v_eps must be a positive number of rad/s or None (got {v_eps!r})")
+        self.v_eps = None if v_eps is None else float(v_eps)
         self._c = self.coulomb.tolist()
         self._b = self.viscous.tolist()
         self._state = self.DeclareVectorInputPort("state", 2 * self.n)
-        self.DeclareVectorOutputPort("generalized_force", self.n, self._calc)
+        self.DeclareVectorOutputPort("generalized_force", self.n,
+                                     self._calc_sharp if self.v_eps is None else self._calc)
 
     def _calc(self, context, output):
+        qd = self._state.Eval(context)[self.n:]
+        output.SetFromVector(-coulomb_viscous_force(qd, self.coulomb, self.viscous, self.v_eps))
+
+    def _calc_sharp(self, context, output):
+        """Scalar fast path of the sharp law (evaluated at every integrator stage of the 2500 Hz
+        loop); tests/test_forces.py checks it equal to :func:`coulomb_viscous_force`."""
         x = self._state.Eval(context)
         out = output.get_mutable_value()
         n = self.n

@@ -137,7 +137,9 @@ def _paper_thetas():
 
 
 def _require_d2r2(ctx, name):
-    if not ctx.robot.startswith("d2r2"):
+    from robust_drake.description import describe
+
+    if not {"unloaded", "loaded"} <= set(describe(ctx.robot).parameter_sets):
         if ctx.n != 2:
             LiuGoldenbergController(ctx.n, ctx.period, (0.0,) * 3, (0.0,) * 3)  # raises the n-joint message
         raise RobustDrakeError(

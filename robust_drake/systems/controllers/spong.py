@@ -20,7 +20,8 @@ Any other URDF arm (serial7, siciliano_2link, ...): Y is the Drake-derived Sloti
 URDF's base parameters, the uncertainty set a box |theta_i - theta0_i| <= rel_bound |theta0_i| +
 abs_bound (:func:`box_uncertainty`; SP1's rho = ||b||_2, SP2's rho_i = b_i), gains from
 :func:`default_gains` and boundary layers from :func:`default_epsilon`.  Which robots have a
-closed form is the interim registry :data:`CLOSED_FORM_SLOTINE_LI` (keyed by robot name).
+closed form is said by its description (``closed_form_regressor``, a key of
+:data:`CLOSED_FORM_SLOTINE_LI`).
 The controller systems are thin wrappers: ``compute`` is :func:`spong_law`.
 """
 
@@ -235,9 +236,16 @@ def _d2r2_closed_form() -> ClosedFormSlotineLi:
         })
 
 
-#: Robots with a closed-form Slotine-Li regressor (interim registry keyed by robot name, until
-#: robot descriptions carry this capability).  Every other URDF arm uses the Drake-derived one.
+#: Closed-form Slotine-Li regressors by name; a robot's description names its one
+#: (``closed_form_regressor``).  Every other URDF arm uses the Drake-derived one.
 CLOSED_FORM_SLOTINE_LI: dict[str, Callable[[], ClosedFormSlotineLi]] = {"d2r2": _d2r2_closed_form}
+
+
+def closed_form_for(robot) -> Callable[[], ClosedFormSlotineLi] | None:
+    """The closed-form design of ``robot`` named by its description, or None."""
+    from robust_drake.description import describe
+
+    return CLOSED_FORM_SLOTINE_LI.get(describe(robot).closed_form_regressor)
 
 #: Defaults for arms without published gains (see :func:`default_gains`).
 DEFAULT_LAMBDA = 20.0  # 1/s, bandwidth of q~ on the sliding surface r = 0
@@ -250,7 +258,7 @@ def default_gains(ctx):
     with a closed-form design (the D2R2); otherwise Lambda = 20 I [1/s] and
     K = 20 [1/s] * diag(M(0)) [N m s/rad], so every joint's r decays at about 20 1/s under K
     alone whatever its inertia (M from the URDF at q = 0, reflected rotor inertia included)."""
-    cf = CLOSED_FORM_SLOTINE_LI.get(ctx.robot)
+    cf = closed_form_for(ctx.robot)
     if cf is not None:
         d = cf()
         return d.K, d.Lambda
@@ -329,7 +337,7 @@ def _spong_design(ctx, params, which):
         theta0 = params.pop("theta0", D2R2_THETA0)
         rho = params.pop("rho", (D2R2_RHO_SP1, D2R2_RHO_SP2)[which])
         return reg, theta0, rho, {"kind": "user", "theta0": np.asarray(theta0, float).tolist()}, False
-    cf = CLOSED_FORM_SLOTINE_LI.get(ctx.robot)
+    cf = closed_form_for(ctx.robot)
     if cf is not None:
         d = cf()
         theta0 = params.pop("theta0", d.theta0)

@@ -70,7 +70,9 @@ def _theta0_ext(k_hat):
 
 
 def _check(ctx, name):
-    if not ctx.robot.startswith("d2r2"):
+    from robust_drake.description import describe
+
+    if describe(ctx.robot).closed_form_regressor != "d2r2":
         raise RobustDrakeError(f"{name} is built for the D2R2 regressor of JS eq. 92; got robot {ctx.robot!r}")
     if getattr(ctx.config, "friction_compensation", False):
         raise RobustDrakeError(

@@ -1,0 +1,216 @@
+"""Robot descriptions: the per-robot facts that are not in the URDF, one file per robot.
+
+A description is a YAML file next to the robot's URDF: ``robust_drake/robots/<name>.yaml`` for
+the shipped arms, ``<stem>.yaml`` beside a user's ``<stem>.urdf``.  :func:`describe` looks it up
+by robot (a name in ``robust_drake.models.ROBOTS`` or a URDF path); a robot without a file gets
+:data:`DEFAULT` (no plant friction, exact encoder, no torque limit, nothing known about the
+drive).  Code asks the description, never the robot's name: the closed loop's plant defaults
+(:meth:`RobotDescription.closed_loop_defaults`, each overridable in ``ClosedLoopConfig``), which
+closed-form Slotine-Li regressor exists, which flexibility parameter set, and the hardware facts
+the repair's plausibility notes quote (gear ratio, rotor inertia, backlash, bus).
+
+File format (every key optional except ``name``)::
+
+    name: d2r2
+    urdf: d2r2.urdf                      # file beside this one (named robots)
+    loads: {none: d2r2.urdf, max: d2r2_loaded.urdf}
+    gravity: false                       # does gravity act on the joints
+    plane: horizontal                    # horizontal | vertical | null
+    summary: "..."                       # one line for listings
+    n: 2
+    link_lengths: [0.30, 0.30]          # m, for task-space metrics
+    drive: direct                        # direct | geared | qdd | unknown
+    gear_ratio: 1                        # joint : rotor
+    rotor_inertia: null                  # kg m^2, motor side
+    motor: Compumotor DM1015-B
+    gearbox: null                        # e.g. planetary
+    backlash_deg: null
+    bus: null                            # e.g. CAN
+    bus_latency: null                    # s
+    torque_limits: [31.2, 31.2]          # N m, physical actuator limits
+    sample_rate: 2500                    # Hz, the controller rate of the hardware
+    closed_form_regressor: d2r2          # key of spong.CLOSED_FORM_SLOTINE_LI, or null
+    flexibility: d2r2                    # flexibility parameter set (--flexible), or null
+    parameter_sets: {...}                # name -> constant in robust_drake.models
+    friction_compensation_k_hat: [1, 2]  # N m, JS eqs. 89-90
+    simulation:                          # closed-loop plant defaults
+      plant_friction: {coulomb: [...], viscous: [...]}
+      encoder_counts_per_rev: 655360     # or encoder_resolution: <rad>
+      saturate: true                     # saturate the command at torque_limits
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import os
+import pathlib
+from dataclasses import dataclass, field, fields
+
+from robust_drake.errors import RobustDrakeError
+
+__all__ = ["RobotDescription", "DEFAULT", "describe", "description_path", "load_description",
+           "packaged_descriptions"]
+
+DRIVES = ("direct", "geared", "qdd", "unknown")
+
+
+@dataclass(frozen=True)
+class RobotDescription:
+    """Per-robot facts (SI units).  ``plant_friction`` is ``{"coulomb": [...], "viscous": [...]}``
+    or None; ``encoder_resolution`` [rad] None means exact; ``saturate`` says whether the closed
+    loop clamps the command at ``torque_limits`` by default."""
+
+    name: str
+    urdf: str | None = None
+    loads: dict = field(default_factory=dict)
+    gravity: bool = True
+    plane: str | None = None
+    summary: str = ""
+    n: int | None = None
+    link_lengths: tuple = ()
+    drive: str = "unknown"
+    gear_ratio: float | None = None
+    rotor_inertia: float | None = None
+    motor: str | None = None
+    gearbox: str | None = None
+    backlash_deg: float | None = None
+    bus: str | None = None
+    bus_latency: float | None = None
+    torque_limits: tuple | None = None
+    sample_rate: float | None = None
+    closed_form_regressor: str | None = None
+    flexibility: str | None = None
+    parameter_sets: dict = field(default_factory=dict)
+    friction_compensation_k_hat: tuple | None = None
+    plant_friction: dict | None = None
+    encoder_resolution: float | None = None
+    saturate: bool = False
+    source: str | None = None  # the file it was read from
+
+    def closed_loop_defaults(self) -> dict:
+        """``plant_friction``, ``encoder_resolution`` and ``torque_limit`` defaults of
+        ``ClosedLoopConfig`` for this robot."""
+        pf = self.plant_friction
+        return {
+            "plant_friction": None if pf is None else {k: list(pf[k]) for k in ("coulomb", "viscous")},
+            "encoder_resolution": self.encoder_resolution,
+            "torque_limit": list(self.torque_limits) if self.saturate and self.torque_limits else None,
+        }
+
+    @property
+    def geared(self) -> bool:
+        """True when a gear stage sits between rotor and joint (gear ratio > 1)."""
+        return self.gear_ratio is not None and self.gear_ratio > 1
+
+
+DEFAULT = RobotDescription(name="default")
+
+
+def _opt_float(x, what, path):
+    if x is None:
+        return None
+    try:
+        v = float(x)
+    except (TypeError, ValueError):
+        raise RobustDrakeError(f"{path}: {what} must be a number (got {x!r})") from None
+    if not math.isfinite(v) or v < 0:
+        raise RobustDrakeError(f"{path}: {what} must be a finite number >= 0 (got {x!r})")
+    return v
+
+
+def _opt_tuple(x, what, path):
+    if x is None:
+        return None
+    if not isinstance(x, (list, tuple)):
+        raise RobustDrakeError(f"{path}: {what} must be a list of numbers (got {x!r})")
+    return tuple(_opt_float(v, what, path) for v in x)
+
+
+def _parse(doc: dict, path: str) -> RobotDescription:
+    if not isinstance(doc, dict) or "name" not in doc:
+        raise RobustDrakeError(f"{path}: a robot description is a mapping with at least 'name'")
+    doc = dict(doc)
+    sim = doc.pop("simulation", None) or {}
+    known = {f.name for f in fields(RobotDescription)} - {"plant_friction", "encoder_resolution", "saturate", "source"}
+    unknown = set(doc) - known
+    if unknown or not set(sim) <= {"plant_friction", "encoder_counts_per_rev", "encoder_resolution", "saturate"}:
+        raise RobustDrakeError(f"{path}: unknown keys {sorted(unknown | (set(sim) - {'plant_friction', 'encoder_counts_per_rev', 'encoder_resolution', 'saturate'}))}")
+    drive = doc.get("drive", "unknown")
+    if drive not in DRIVES:
+        raise RobustDrakeError(f"{path}: drive must be one of {', '.join(DRIVES)} (got {drive!r})")
+    pf = sim.get("plant_friction")
+    if pf is not None and (not isinstance(pf, dict) or set(pf) != {"coulomb", "viscous"}):
+        raise RobustDrakeError(f"{path}: simulation.plant_friction needs keys coulomb and viscous")
+    enc = _opt_float(sim.get("encoder_resolution"), "encoder_resolution", path)
+    if sim.get("encoder_counts_per_rev") is not None:
+        enc = 2.0 * math.pi / _opt_float(sim["encoder_counts_per_rev"], "encoder_counts_per_rev", path)
+    n = doc.get("n")
+    loads = doc.get("loads") or ({"none": doc["urdf"]} if doc.get("urdf") else {})
+    if not isinstance(loads, dict):
+        raise RobustDrakeError(f"{path}: loads must map a load name to a URDF file")
+    return RobotDescription(
+        name=str(doc["name"]), urdf=doc.get("urdf"), loads={str(k): str(v) for k, v in loads.items()},
+        gravity=bool(doc.get("gravity", True)), plane=doc.get("plane"), summary=str(doc.get("summary", "")),
+        n=None if n is None else int(n),
+        link_lengths=_opt_tuple(doc.get("link_lengths"), "link_lengths", path) or (),
+        drive=drive, gear_ratio=_opt_float(doc.get("gear_ratio"), "gear_ratio", path),
+        rotor_inertia=_opt_float(doc.get("rotor_inertia"), "rotor_inertia", path),
+        motor=doc.get("motor"), gearbox=doc.get("gearbox"),
+        backlash_deg=_opt_float(doc.get("backlash_deg"), "backlash_deg", path),
+        bus=doc.get("bus"), bus_latency=_opt_float(doc.get("bus_latency"), "bus_latency", path),
+        torque_limits=_opt_tuple(doc.get("torque_limits"), "torque_limits", path),
+        sample_rate=_opt_float(doc.get("sample_rate"), "sample_rate", path),
+        closed_form_regressor=doc.get("closed_form_regressor"), flexibility=doc.get("flexibility"),
+        parameter_sets=dict(doc.get("parameter_sets") or {}),
+        friction_compensation_k_hat=_opt_tuple(doc.get("friction_compensation_k_hat"), "k_hat", path),
+        plant_friction=None if pf is None else {k: list(_opt_tuple(pf[k], k, path)) for k in ("coulomb", "viscous")},
+        encoder_resolution=enc, saturate=bool(sim.get("saturate", False)), source=path,
+    )
+
+
+@functools.lru_cache(maxsize=64)
+def _load_cached(path: str, mtime: float) -> RobotDescription:
+    import yaml
+
+    try:
+        with open(path) as fh:
+            doc = yaml.safe_load(fh)
+    except (OSError, yaml.YAMLError) as exc:
+        raise RobustDrakeError(f"could not read robot description {path}: {exc}") from None
+    return _parse(doc, path)
+
+
+def load_description(path) -> RobotDescription:
+    """The description in the YAML file ``path``."""
+    p = os.fspath(path)
+    return _load_cached(p, os.path.getmtime(p))
+
+
+def description_path(robot) -> pathlib.Path | None:
+    """The description file of ``robot`` (name or URDF path), or None if it has none."""
+    from robust_drake.models import ROBOTS, packaged_models_dir, models_dir
+
+    text = os.fspath(robot)
+    if text in ROBOTS:  # ROBUST_DRAKE_MODELS may hold its own description, else the packaged one
+        p = models_dir() / f"{text}.yaml"
+        p = p if p.is_file() else packaged_models_dir() / f"{text}.yaml"
+    elif text.endswith((".urdf", ".sdf")):
+        p = pathlib.Path(text).expanduser().with_suffix(".yaml")
+    else:
+        return None
+    return p if p.is_file() else None
+
+
+def describe(robot) -> RobotDescription:
+    """The :class:`RobotDescription` of ``robot``; :data:`DEFAULT` (named after the robot) when
+    it has no description file."""
+    p = description_path(robot)
+    if p is None:
+        return RobotDescription(name=str(robot))
+    return load_description(p)
+
+
+def packaged_descriptions(folder) -> list[RobotDescription]:
+    """Every ``*.yaml`` description in ``folder`` (the shipped robots), sorted by file name."""
+    return [load_description(p) for p in sorted(pathlib.Path(folder).glob("*.yaml"))]

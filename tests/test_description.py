@@ -1,0 +1,122 @@
+"""Robot descriptions (``robust_drake.description``): per-robot facts looked up by robot, from
+the YAML file next to its URDF; a user's URDF with a description beside it gets its settings,
+one without gets the neutral defaults, and the config overrides either."""
+
+import math
+
+import numpy as np
+import pytest
+
+from robust_drake.description import describe
+from robust_drake.errors import RobustDrakeError
+from robust_drake.models import ROBOTS, resolve_urdf
+
+USER_YAML = """\
+name: my_arm
+n: 2
+drive: qdd
+gear_ratio: 9.0
+rotor_inertia: 1.0e-4
+motor: XM-9
+gearbox: cycloidal
+backlash_deg: 0.2
+torque_limits: [5.0, 3.0]
+simulation:
+  plant_friction: {coulomb: [0.4, 0.1], viscous: [0.01, 0.02]}
+  encoder_resolution: 1.0e-4
+  saturate: true
+"""
+
+
+def _user_arm(tmp_path, yaml_text=USER_YAML):
+    """A copy of the DFKI C.1 URDF under a user's name, with ``yaml_text`` beside it."""
+    urdf = tmp_path / "my_arm.urdf"
+    urdf.write_text(resolve_urdf("dfki_double_pendulum_c1").read_text())
+    if yaml_text is not None:
+        (tmp_path / "my_arm.yaml").write_text(yaml_text)
+    return str(urdf)
+
+
+def test_user_description_beside_the_urdf_sets_the_loop(tmp_path):
+    from robust_drake.diagram import ClosedLoop, ClosedLoopConfig
+
+    path = _user_arm(tmp_path)
+    c = ClosedLoopConfig(robot=path, controller="pd", trajectory="sine").resolved()
+    assert c.plant_friction == {"coulomb": [0.4, 0.1], "viscous": [0.01, 0.02]}
+    assert c.encoder_resolution == 1e-4 and c.torque_limit == [5.0, 3.0]
+    loop = ClosedLoop(ClosedLoopConfig(robot=path, controller="pd", trajectory="sine"))
+    names = {s.get_name() for s in [loop.encoder] + loop.effect_blocks}
+    assert "plant_friction" in names
+    # every default is overridable in the config
+    c2 = ClosedLoopConfig(robot=path, controller="pd", trajectory="sine", plant_friction=None,
+                          encoder_resolution=None, torque_limit=None).resolved()
+    assert (c2.plant_friction, c2.encoder_resolution, c2.torque_limit) == (None, None, None)
+
+
+def test_urdf_without_description_gets_neutral_defaults(tmp_path):
+    from robust_drake.diagram import ClosedLoopConfig
+
+    path = _user_arm(tmp_path, yaml_text=None)
+    d = describe(path)
+    assert d.drive == "unknown" and d.closed_form_regressor is None
+    c = ClosedLoopConfig(robot=path, controller="pd", trajectory="sine").resolved()
+    assert (c.plant_friction, c.encoder_resolution, c.torque_limit) == (None, None, None)
+
+
+def test_d2r2_description_holds_the_paper_numbers():
+    """JS section 1 (31.2 N m), eq. 70 (655360 counts/rev), section 9 (k_hat = 1, 2 N m)."""
+    d = describe("d2r2")
+    c = d.closed_loop_defaults()
+    assert c["torque_limit"] == [31.2, 31.2]
+    assert math.isclose(c["encoder_resolution"], 2 * math.pi / 655360, rel_tol=1e-15)
+    assert d.friction_compensation_k_hat == (1.0, 2.0)
+    assert d.drive == "direct" and not d.geared and d.closed_form_regressor == "d2r2"
+    # the module constants other code imports are the same numbers (one source of behaviour)
+    from robust_drake.models import D2R2_TORQUE_LIMIT
+    from robust_drake.systems.friction import D2R2_COULOMB, D2R2_K_HAT, D2R2_VISCOUS
+    from robust_drake.systems.sensors import D2R2_THETA_M
+
+    assert c["plant_friction"] == {"coulomb": list(D2R2_COULOMB), "viscous": list(D2R2_VISCOUS)}
+    assert d.friction_compensation_k_hat == D2R2_K_HAT and c["encoder_resolution"] == D2R2_THETA_M
+    assert d.torque_limits == (D2R2_TORQUE_LIMIT,) * 2
+
+
+def test_plausibility_quotes_the_description(tmp_path):
+    from robust_drake.identification.repair import plausibility
+
+    path = _user_arm(tmp_path)
+    txt = plausibility("rotor_inertia", {"reflected_inertia": 0.008}, path)
+    assert "XM-9: gr^2 Ir = 81 x 0.0001 = 0.0081 kg m^2" in txt
+    txt = plausibility("load_dependent_friction", {"load_coefficient": 0.1}, path)
+    assert "9:1 cycloidal gear" in txt
+    # the D2R2 is direct drive: no gear or backlash facts to quote
+    assert "(" not in plausibility("rotor_inertia", {"reflected_inertia": 0.008}, "d2r2")
+    assert "deg on the" not in plausibility("stribeck", {}, "d2r2")
+
+
+@pytest.mark.parametrize("robot", sorted(ROBOTS))
+def test_every_shipped_description_matches_its_urdf(robot):
+    """n and (two-link arms) the link lengths of the description are the URDF's: l1 = distance
+    of joint 2's axis from joint 1's, l2 = distance of the ``tool`` frame from joint 2."""
+    from robust_drake.models import _joint2_offset, make_plant
+
+    d = describe(robot)
+    plant = make_plant(robot)
+    assert d.name == robot and d.n == plant.num_velocities() == len(d.link_lengths)
+    if d.n == 2:
+        _, j2, l1 = _joint2_offset(plant)
+        tool = plant.GetFrameByName("tool")
+        assert tool.body().index() == j2.child_body().index()
+        l2 = np.hypot(*tool.GetFixedPoseInBodyFrame().translation()[:2])
+        assert np.allclose(d.link_lengths, (l1, l2), rtol=1e-12)
+
+
+@pytest.mark.parametrize("bad, match", [
+    ("n: 2\n", "name"),
+    ("name: x\ndrive: turbo\n", "drive"),
+    ("name: x\ngear_ration: 6\n", "unknown keys"),
+    ("name: x\nsimulation: {plant_friction: {coulomb: [1]}}\n", "coulomb and viscous"),
+])
+def test_bad_description_is_a_user_error(tmp_path, bad, match):
+    with pytest.raises(RobustDrakeError, match=match):
+        describe(_user_arm(tmp_path, bad))
