@@ -40,7 +40,7 @@ from robust_drake.divergence import STATE_LIMIT, TRACKING_ERROR_LIMIT, is_diverg
 from robust_drake.errors import RobustDrakeError
 from robust_drake.metrics import error_criteria, torque_statistics
 from robust_drake.models import ArmSpec, ROBOTS, add_arm, get_arm, set_d2r2_theta
-from robust_drake.registry import BuildContext, block_label, is_block_spec, make_block, resolve
+from robust_drake.registry import BuildContext, block_label, is_block_spec, make_block
 from robust_drake.systems.forces import add_force_blocks, sum_into_plant
 from robust_drake.systems.friction import CoulombViscousFriction, FixedFrictionCompensation
 from robust_drake.systems.sensors import QuantizingEncoder, quantize
