@@ -99,6 +99,9 @@ def run(args) -> int:
     header = ["model", *[f"fit j{j}" for j in range(n)], *[f"val j{j}" for j in range(n)]]
     print(f"robot {rep['robot']}, {rep['samples']} fit samples, RMS torque residual [N m]:")
     print(format_table(rows, header))
+    print(f"verdict: {rep['verdict']} ({rep['verdict_reason']})")
+    for d in rep.get("rejected_effects") or []:
+        print(f"  dropped {d['label']}: {d['reason']}")
     print(f"unexplained_structure: {str(rep['unexplained_structure']).lower()}"
           + (f" ({', '.join(w['variable'] + ' on joint ' + str(w['joint']) for w in rep['unexplained_where'])})"
              if rep["unexplained_structure"] else ""))

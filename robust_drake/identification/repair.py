@@ -56,6 +56,9 @@ class RepairOptions:
     instruments: bool = True  # errors-in-variables test; IV estimate when significant (instruments.py)
     nominal: bool = True  # compare with the URDF's parameters (nominal.py): span effects, torque_scale joint
     sigma_rel: float = 0.05  # relative trust in the URDF's base parameters for that comparison
+    #: never worse (stages.never_worse): an effect or the IV switch is kept only if no joint's
+    #: validation RMS torque (and replay RMS q) exceeds the baseline's by more than this (relative)
+    never_worse_tol: float = 0.01
     notes: list[str] = field(default_factory=list)
 
 
@@ -263,9 +266,9 @@ def run_repair(fit_paths, options: RepairOptions, validate_paths=None, out_dir=N
         est = S.choose_estimator(inp, base, opts, log)
         sel = S.select_effects(inp, base, est, opts, log)
         sel = S.resolve_torque_scale(inp, base, est, sel, opts, log)
-        est, sel, guard = S.never_worse(inp, base, est, sel, opts, log)
+        est, sel, guard = S.never_worse(inp, base, est, sel, opts, log, tol=opts.never_worse_tol)
         est, sel, fin, cons, replay_out = S.replay_guard(inp, base, est, sel, guard, opts, log)
-        nominal = S.compare_nominal(inp, sel, fin, opts, log)
+        nominal = S.compare_nominal(inp, sel, fin, guard, opts, log)
     warn_msgs = list(dict.fromkeys(inp.warnings + sorted({str(w.message) for w in caught})))
     result = RP.RepairResult(opts, inp, base, est, sel, guard, fin, nominal, cons, replay_out, warn_msgs)
     report = RP.build_report(result)

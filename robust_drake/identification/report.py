@@ -66,15 +66,22 @@ def json_default(o):
 
 
 def verdict(res: RepairResult) -> dict:
-    """``repaired`` when at least one effect (or the IV estimate) survives the never-worse rule."""
+    """``repaired`` when the final (free-fit) model differs from the baseline: at least one
+    residual-selected effect, or the IV estimate, survived the never-worse rule."""
     kept = bool(res.selection.chosen) or res.estimator.iv
+    named = [e["label"] for e in res.final.effects_out if e.get("source") == "parameter_shift"]
     tried = [s for s in res.selection.steps if s.accepted]
-    text = ("repaired" if kept else "no_improvement")
-    why = (f"{len(res.selection.chosen)} effect(s) kept; no joint validates worse than the baseline by more "
-           f"than {res.guard.tolerance:.0%} and the replay is not worse" if kept else
-           "nothing kept: " + ("no candidate passed the selection" if not tried and not res.guard.dropped else
-                               "every effect tried made a joint's validation or the replay worse than the baseline"))
-    return {"verdict": text, "reason": why}
+    if kept:
+        why = (f"{len(res.selection.chosen)} effect(s) kept ({res.estimator.method}); no joint validates worse "
+               f"than the baseline by more than {res.guard.tolerance:.0%} and the replay is not worse")
+    elif not tried and not res.guard.dropped:
+        why = "nothing kept: no candidate passed the selection"
+    else:
+        why = ("nothing kept: every effect tried made a joint's validation or the replay worse than the "
+               "baseline (see rejected_effects)")
+    if named:
+        why += f"; named from the URDF comparison (not part of the fitted model): {', '.join(named)}"
+    return {"verdict": "repaired" if kept else "no_improvement", "verdict_reason": why}
 
 
 def build_report(res: RepairResult) -> dict:
@@ -194,7 +201,7 @@ def signal(name: str) -> str:
 def _md_header(rep: dict) -> list[str]:
     d = rep["data"]["fit"]
     return [f"# Repair report: {rep['robot']}", "",
-            f"**Verdict: {rep.get('verdict', 'n/a')}** ({rep.get('reason', '')}).", "",
+            f"**Verdict: {rep.get('verdict', 'n/a')}** ({rep.get('verdict_reason', '')}).", "",
             f"Joints (numbered from 0, URDF names): "
             + ", ".join(f"{j} = `{nm}`" for j, nm in enumerate(_names(rep))) + ".", "",
             f"Fit samples: {rep['samples']} ({len(d['sources'])} files); validation samples: "

@@ -300,8 +300,8 @@ def never_worse(inp: Inputs, base: Baseline, est: Estimator, sel: Selection, opt
         if ratio.max() <= 1.0 + tol or (not effects and not est.iv):
             break
         bad = [j for j in range(len(ratio)) if ratio[j] > 1.0 + tol]
-        why = (f"validation RMS on joint(s) {', '.join(f'{j} ({inp.joint_names[j]})' for j in bad)} "
-               f"{', '.join(f'{ratio[j] - 1:+.1%}' for j in bad)} against the baseline (tolerance {tol:.0%})")
+        why = (f"with it the validation RMS is worse than the baseline's on joint(s) "
+               f"{', '.join(f'{j} ({inp.joint_names[j]}) {ratio[j] - 1:+.1%}' for j in bad)} (tolerance {tol:.0%})")
         options = [(est, effects[:k] + effects[k + 1:], effects[k]) for k in range(len(effects))]
         if est.iv:
             options.append((est.as_least_squares(), effects, None))
@@ -356,8 +356,10 @@ def final_model(inp: Inputs, est: Estimator, sel: Selection, opts) -> Final:
     return Final(final_fit, slices, r_val, rows)
 
 
-def compare_nominal(inp: Inputs, sel: Selection, fin: Final, opts, log) -> dict | None:
-    """Against the URDF's parameters: effects inside the rigid-body span (nominal.py)."""
+def compare_nominal(inp: Inputs, sel: Selection, fin: Final, guard: Guard, opts, log) -> dict | None:
+    """Against the URDF's parameters: effects inside the rigid-body span (nominal.py). A named
+    in-span effect is kept only if the URDF model with it validates no worse on any joint than
+    the URDF model without it (``guard.tolerance``)."""
     if not opts.nominal:
         return None
     from robust_drake.identification import nominal as NM
@@ -370,6 +372,15 @@ def compare_nominal(inp: Inputs, sel: Selection, fin: Final, opts, log) -> dict 
         f"(99 % limit {nominal['chi2_limit']:.1f}), validate {np.round(nominal['rms_validate'], 4)}")
     if named is not None:
         e = named.pop("effect")
+        worse = [j for j, (a, b) in enumerate(zip(named["rms_validate_after"], nominal["rms_validate"]))
+                 if a > b * (1.0 + guard.tolerance)]
+        if worse:
+            why = (f"URDF model + {named['label']} validates worse on joint(s) "
+                   f"{', '.join(f'{j} ({inp.joint_names[j]})' for j in worse)} than the URDF model alone")
+            guard.dropped.append({"label": named["label"], "kind": named["kind"], "joint": named["joint"],
+                                  "reason": why})
+            log(f"never worse: dropped {named['label']}: {why}")
+            return nominal
         fin.effects_out.append({
             "kind": named["kind"], "joint": named["joint"], "label": named["label"],
             "joint_name": None if named["joint"] is None else inp.joint_names[named["joint"]],
