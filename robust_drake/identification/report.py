@@ -107,8 +107,12 @@ def build_report(res: RepairResult) -> dict:
                   "standard_errors": fin.fit.as_dict()["standard_errors"]},
         **verdict(res),
         "never_worse": {"tolerance": res.guard.tolerance, "attempts": res.guard.attempts,
-                        "rule": "kept only if no joint's validation RMS torque error and no joint's replay RMS "
-                                "position error exceeds the baseline's by more than the tolerance (relative)"},
+                        "rule": "an effect is kept only if no joint's validation RMS torque error exceeds the "
+                                "baseline's (with IV: the larger of the LS and IV baselines') by more than the "
+                                "tolerance (relative); the model "
+                                "(effects and the IV switch) only if no joint's replay RMS position error on the "
+                                "validation data exceeds the least-squares baseline's by more than the tolerance",
+                        "reference_rms_validate": list(_reference(res))},
         "unexplained_structure": bool(final_ana["unexplained_structure"]),
         "nominal": res.nominal,
         "estimator": res.estimator.report,
@@ -131,6 +135,12 @@ def build_report(res: RepairResult) -> dict:
         "baseline_model": base_model.to_json(),
     }
     return strict(report)
+
+
+def _reference(res: RepairResult):
+    from robust_drake.identification.stages import reference_rms
+
+    return [float(x) for x in reference_rms(res.baseline, res.estimator)]
 
 
 def _models(res: RepairResult):
@@ -243,7 +253,8 @@ def _md_effects(rep: dict) -> list[str]:
                  f"confidence {e['confidence']}. Why plausible: {e['plausibility']}.")
     nw = rep.get("never_worse") or {}
     if rep.get("rejected_effects"):
-        L += ["", f"Tried and dropped by the never-worse rule (tolerance {_num(nw.get('tolerance'), '.0%')}):", ""]
+        L += ["", f"Tried and dropped by the never-worse rule (tolerance {_num(nw.get('tolerance'), '.0%')}; "
+              f"{nw.get('rule', '')}):", ""]
         L += [f"- {d['label']} ({_joint(rep, d['joint'])}): {d['reason']}" for d in rep["rejected_effects"]]
     return L
 

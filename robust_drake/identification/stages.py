@@ -7,11 +7,22 @@
 Each stage takes and returns small dataclasses. The estimator travels in one typed form,
 :class:`Estimator` (least squares or instrumental variables with its instrument columns).
 
-Never worse (:func:`never_worse`, :func:`replay_guard`): the final model is kept only if its
-validation RMS torque error is not above the baseline's by more than ``NEVER_WORSE_TOL``
-(relative) on ANY joint, and its replay RMS position error is not above the baseline's replay by
-more than that on any joint. Otherwise the worst offender (an effect, or the switch to IV) is
-dropped and the model refitted, until the rule holds (at the latest with the baseline itself).
+Never worse (:func:`never_worse`, :func:`replay_guard`), tolerance ``NEVER_WORSE_TOL`` (relative,
+per joint):
+
+* an effect is kept only if the final model's validation RMS torque error is not above the
+  baseline's on ANY joint (with IV: not above the larger of the LS and IV baselines', see
+  :func:`reference_rms`), and
+* the final model (effects and estimator) is kept only if its replay RMS position error on the
+  validation data is not above the least-squares baseline's replay on any joint.
+
+Otherwise the worst offender is dropped and the model refitted, until the rule holds (at the
+latest with the least-squares baseline itself). The switch to instrumental variables is judged
+by the replay, not by the torque error: with errors in the variables the validation data's
+regressor is as noisy as the fit data's, and the attenuated LS parameters are the better
+*equation-error* predictor there even when they are wrong (measured: tests/test_hidden_effects.py's
+sensor-vibration arm, IV parameters within 3 % of the truth and the replay 4-14x better, yet
+the validation torque error +6.5 % on joint 0; DFKI A.0 +10 %/+5 % with the replay better).
 """
 
 from __future__ import annotations
@@ -279,37 +290,43 @@ class Guard:
     dropped: list = field(default_factory=list)
 
 
+def reference_rms(base: Baseline, est: Estimator) -> np.ndarray:
+    """Validation RMS torque [N m] per joint an effect must not exceed: the (least-squares)
+    baseline's; with IV (accepted on the replay), on a joint where the IV baseline's torque error
+    is already higher, the IV baseline's (the effect is not to blame for the estimator's cost)."""
+    ref = np.asarray(base.rms_validate, float)
+    if est.iv:
+        ref = np.maximum(ref, np.asarray(est.report["baseline_iv"]["rms_validate"], float))
+    return np.maximum(ref, 1e-12)
+
+
 def _val_ratio(inp, base, est, effects, opts):
     w = refit_weights(inp, base, est, effects, opts)
     f, _ = est.fit(inp.cf, effects, w)
     r = rms(inp.val.tau - predict_tau(inp.cv, effects, f.theta))
-    return np.asarray(r) / np.maximum(base.rms_validate, 1e-12), r
+    return np.asarray(r) / reference_rms(base, est), r
 
 
 def never_worse(inp: Inputs, base: Baseline, est: Estimator, sel: Selection, opts, log,
                 tol: float = NEVER_WORSE_TOL) -> tuple[Estimator, Selection, Guard]:
-    """Drop effects (or the IV switch) until no joint validates worse than the baseline by more
+    """Drop effects until no joint validates worse than :func:`reference_rms` by more
     than ``tol`` (relative RMS). At each round every single drop is tried and the one leaving the
-    smallest worst-joint ratio is taken."""
+    smallest worst-joint ratio is taken. (The IV switch is judged by :func:`replay_guard`.)"""
     guard = Guard(tol)
     effects = list(sel.chosen)
     while True:
         ratio, r = _val_ratio(inp, base, est, effects, opts)
         guard.attempts.append({"estimator": est.method, "effects": [effect_label(e) for e in effects],
                                "rms_validate": r, "worst_ratio": float(ratio.max())})
-        if ratio.max() <= 1.0 + tol or (not effects and not est.iv):
+        if ratio.max() <= 1.0 + tol or not effects:
             break
         bad = [j for j in range(len(ratio)) if ratio[j] > 1.0 + tol]
         why = (f"with it the validation RMS is worse than the baseline's on joint(s) "
                f"{', '.join(f'{j} ({inp.joint_names[j]}) {ratio[j] - 1:+.1%}' for j in bad)} (tolerance {tol:.0%})")
-        options = [(est, effects[:k] + effects[k + 1:], effects[k]) for k in range(len(effects))]
-        if est.iv:
-            options.append((est.as_least_squares(), effects, None))
-        scored = [(float(_val_ratio(inp, base, e2, eff2, opts)[0].max()), i) for i, (e2, eff2, _) in enumerate(options)]
-        est, effects, gone = options[min(scored)[1]]
-        guard.dropped.append({"label": "instrumental variables" if gone is None else effect_label(gone),
-                              "kind": "estimator" if gone is None else gone.kind,
-                              "joint": None if gone is None else gone.joint, "reason": why})
+        scored = [(float(_val_ratio(inp, base, est, effects[:k] + effects[k + 1:], opts)[0].max()), k)
+                  for k in range(len(effects))]
+        gone = effects.pop(min(scored)[1])
+        guard.dropped.append({"label": effect_label(gone), "kind": gone.kind, "joint": gone.joint, "reason": why})
         log(f"never worse: dropped {guard.dropped[-1]['label']}: {why}")
     sel.chosen = effects
     sel.weights = refit_weights(inp, base, est, effects, opts)
