@@ -14,7 +14,12 @@
      "final": {"rms_fit", "rms_validate"}, "unexplained_structure": bool,
      "replay": {"before": {...}, "after": {...}}}
 
-plus diagnostics (selection steps, identifiability, residual tests, data summary, notes).
+plus diagnostics (selection steps, identifiability, residual tests, data summary, notes), the
+never-worse outcome (``"verdict": "repaired" | "no_improvement"``, ``"verdict_reason"``,
+``"never_worse"``, ``"rejected_effects"`` and ``effects[*].kept/reason``), ``"joint_names"`` (URDF,
+joints numbered from 0 everywhere) and the identified models ``"model"`` / ``"baseline_model"``
+(:class:`~robust_drake.identification.model.IdentifiedModel.to_json`), which are what control
+takes. The stages are in ``stages.py``; rendering (report.md from the same dict) in ``report.py``.
 Validation: the ``validate`` files; without them the last ``HOLDOUT_FRACTION`` of every fit file
 (a contiguous tail) is held out, and the report says so.
 """
@@ -30,13 +35,12 @@ import numpy as np
 
 from robust_drake.errors import RobustDrakeError
 from robust_drake.identification import report as RP
-from robust_drake.identification.data import DEFAULT_CUTOFF_HZ, DataWarning, IdentData
+from robust_drake.identification.data import DEFAULT_CUTOFF_HZ, DataWarning
 from robust_drake.identification.model import IdentifiedModel
 from robust_drake.identification.report import json_default as _json_default
 from robust_drake.identification.report import render_markdown  # noqa: F401  (re-exported)
 from robust_drake.identification.selection import MIN_GAIN
-
-HOLDOUT_FRACTION = 0.25
+from robust_drake.identification.stages import HOLDOUT_FRACTION, split_tail, tail_mask  # noqa: F401  (re-exported)
 
 
 @dataclass
@@ -60,25 +64,6 @@ class RepairOptions:
     #: validation RMS torque (and replay RMS q) exceeds the baseline's by more than this (relative)
     never_worse_tol: float = 0.01
     notes: list[str] = field(default_factory=list)
-
-
-def tail_mask(data: IdentData, fraction: float = HOLDOUT_FRACTION) -> np.ndarray:
-    """True on the contiguous last ``fraction`` of every file."""
-    test = np.zeros(data.N, bool)
-    for s in np.unique(data.segment):
-        idx = np.nonzero(data.segment == s)[0]
-        test[idx[int(len(idx) * (1 - fraction)):]] = True
-    return test
-
-
-def split_tail(data: IdentData, fraction: float = HOLDOUT_FRACTION) -> tuple[IdentData, IdentData]:
-    """Hold out the contiguous last ``fraction`` of every file."""
-    test = tail_mask(data, fraction)
-    return data.subset(~test), data.subset(test)
-
-
-def _rms(r):
-    return [float(x) for x in np.sqrt(np.mean(np.asarray(r) ** 2, axis=0))]
 
 
 # physical plausibility of an identified effect, generic + hardware-aware where we know it
@@ -269,12 +254,22 @@ def run_repair(fit_paths, options: RepairOptions, validate_paths=None, out_dir=N
         est, sel, guard = S.never_worse(inp, base, est, sel, opts, log, tol=opts.never_worse_tol)
         est, sel, fin, cons, replay_out = S.replay_guard(inp, base, est, sel, guard, opts, log)
         nominal = S.compare_nominal(inp, sel, fin, guard, opts, log)
+    _rate_plausibility(fin.effects_out, opts.robot)
     warn_msgs = list(dict.fromkeys(inp.warnings + sorted({str(w.message) for w in caught})))
     result = RP.RepairResult(opts, inp, base, est, sel, guard, fin, nominal, cons, replay_out, warn_msgs)
     report = RP.build_report(result)
     if out_path is not None:
         _write_report(report, result, out_path, fit_paths, validate_paths)
     return report
+
+
+def _rate_plausibility(rows: list[dict], robot) -> None:
+    """Each kept effect's ``plausibility`` text (:func:`plausibility`)."""
+    for row in rows:
+        row["plausibility"] = plausibility(row["kind"], row["parameters"], robot)
+        if row["source"] == "parameter_shift":
+            row["plausibility"] += (" (inside the rigid-body span: named from the base-parameter shift against "
+                                    "the URDF; errors are URDF-only vs URDF + this effect)")
 
 
 def _write_report(report: dict, result, out_path: str, fit_paths, validate_paths) -> None:
@@ -326,17 +321,6 @@ def _check_robot_urdf(robot) -> None:
 
 def fit_paths_are_files(paths) -> bool:
     return all(isinstance(p, (str, os.PathLike)) and os.path.isfile(p) for p in paths)
-
-
-def _jsonable(d):
-    out = {}
-    for k, v in d.items():
-        if isinstance(v, np.ndarray):
-            v = v.tolist()
-        elif isinstance(v, np.generic):
-            v = v.item()
-        out[k] = v
-    return out
 
 
 def run_repair_demo(out_dir: str, kind: str = "stribeck", seed: int = 0, progress=print, **options) -> dict:

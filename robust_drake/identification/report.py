@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from robust_drake.identification import residual as R
+from robust_drake.identification.stages import identified_models, reference_rms
 
 
 @dataclass
@@ -138,14 +139,10 @@ def build_report(res: RepairResult) -> dict:
 
 
 def _reference(res: RepairResult):
-    from robust_drake.identification.stages import reference_rms
-
     return [float(x) for x in reference_rms(res.baseline, res.estimator)]
 
 
 def _models(res: RepairResult):
-    from robust_drake.identification.stages import identified_models
-
     return identified_models(res.inputs, res.baseline, res.estimator, res.selection, res.final)
 
 

@@ -39,6 +39,23 @@ from robust_drake.identification.least_squares import LSResult, load_regressor, 
 
 #: relative tolerance of the never-worse rule (validation RMS torque and replay RMS q, per joint)
 NEVER_WORSE_TOL = 0.01
+#: without validation files, this contiguous tail of every fit file is held out
+HOLDOUT_FRACTION = 0.25
+
+
+def tail_mask(data: IdentData, fraction: float = HOLDOUT_FRACTION) -> np.ndarray:
+    """True on the contiguous last ``fraction`` of every file."""
+    test = np.zeros(data.N, bool)
+    for s in np.unique(data.segment):
+        idx = np.nonzero(data.segment == s)[0]
+        test[idx[int(len(idx) * (1 - fraction)):]] = True
+    return test
+
+
+def split_tail(data: IdentData, fraction: float = HOLDOUT_FRACTION) -> tuple[IdentData, IdentData]:
+    """Hold out the contiguous last ``fraction`` of every file."""
+    test = tail_mask(data, fraction)
+    return data.subset(~test), data.subset(test)
 
 
 def rms(r) -> list[float]:
@@ -70,7 +87,6 @@ def load_inputs(fit_paths, validate_paths, opts, log) -> Inputs:
     """Read the fit (and validation) files; hold out a tail when no validation files are given."""
     from robust_drake.identification import input_checks as IC
     from robust_drake.identification.model import joint_names_of
-    from robust_drake.identification.repair import HOLDOUT_FRACTION, split_tail
 
     warn: list[str] = []
     regressor = load_regressor(opts.robot)
@@ -165,7 +181,6 @@ def choose_estimator(inp: Inputs, base: Baseline, opts, log) -> Estimator:
     attenuated LS fit makes the selection chase columns that only mimic the bias): Hausman test,
     then (with the consistent fit and the replay on) the replay of the fit data's motion."""
     from robust_drake.identification import instruments as IV
-    from robust_drake.identification.repair import tail_mask
     from robust_drake.identification.selection import n_effective
 
     fit = inp.fit
@@ -344,8 +359,6 @@ class Final:
 
 def final_model(inp: Inputs, est: Estimator, sel: Selection, opts) -> Final:
     """Final fit and per-effect cumulative validation of the kept effects."""
-    from robust_drake.identification.repair import _jsonable, plausibility
-
     chosen, w = sel.chosen, sel.weights
     final_fit, slices = est.fit(inp.cf, chosen, w)
     rows = []
@@ -358,13 +371,12 @@ def final_model(inp: Inputs, est: Estimator, sel: Selection, opts) -> Final:
         rows.append({
             "kind": e.kind, "joint": e.joint, "label": effect_label(e),
             "joint_name": None if e.joint is None else inp.joint_names[e.joint],
-            "parameters": _jsonable(params),
+            "parameters": _plain(params),
             "coefficients": [float(c) for c in coef], "standard_errors": [float(s) for s in se],
             "rms_validate_after": rms(rv),
             "heldout_gain": step.gain, "source": "residual",
             "confidence": "high" if step.gain >= 0.25 and not R.analyse(inp.fit, fk.residual)["unexplained_structure"]
             else "moderate",
-            "plausibility": plausibility(e.kind, params, opts.robot),
             "kept": True, "reason": "selected on held-out error; no joint validates worse than the baseline",
         })
         if effect_label(e) in sel.joint_resolution:
@@ -380,15 +392,13 @@ def compare_nominal(inp: Inputs, sel: Selection, fin: Final, guard: Guard, opts,
     if not opts.nominal:
         return None
     from robust_drake.identification import nominal as NM
-    from robust_drake.identification.repair import _jsonable, plausibility
-
     nominal = NM.compare_with_nominal(inp.cf, inp.cv, inp.regressor, fin.fit, sel.chosen, sel.candidates,
                                       sel.weights, sigma_rel=opts.sigma_rel)
     named = nominal.pop("named")
     log(f"nominal (URDF) model: parameter shift chi2 {nominal['chi2']:.1f} "
         f"(99 % limit {nominal['chi2_limit']:.1f}), validate {np.round(nominal['rms_validate'], 4)}")
     if named is not None:
-        e = named.pop("effect")
+        named.pop("effect")
         worse = [j for j, (a, b) in enumerate(zip(named["rms_validate_after"], nominal["rms_validate"]))
                  if a > b * (1.0 + guard.tolerance)]
         if worse:
@@ -401,15 +411,12 @@ def compare_nominal(inp: Inputs, sel: Selection, fin: Final, guard: Guard, opts,
         fin.effects_out.append({
             "kind": named["kind"], "joint": named["joint"], "label": named["label"],
             "joint_name": None if named["joint"] is None else inp.joint_names[named["joint"]],
-            "parameters": _jsonable(named["parameters"]), "coefficients": named["coefficients"],
+            "parameters": _plain(named["parameters"]), "coefficients": named["coefficients"],
             "standard_errors": [None] * len(named["coefficients"]),
             "rms_validate_after": named["rms_validate_after"],
             "rms_validate_before": nominal["rms_validate"],
             "heldout_gain": None, "source": "parameter_shift",
             "confidence": "moderate",
-            "plausibility": plausibility(e.kind, named["parameters"], opts.robot)
-            + " (inside the rigid-body span: named from the base-parameter shift against the URDF; "
-              "errors are URDF-only vs URDF + this effect)",
             "kept": True, "reason": "named from the parameter shift against the URDF (not part of the free fit)",
         })
         nominal["named"] = named["label"]
