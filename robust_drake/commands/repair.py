@@ -64,6 +64,7 @@ def run(args) -> int:
     from robust_drake.identification.data import DEFAULT_CUTOFF_HZ
     from robust_drake.identification.effects import EFFECTS
     from robust_drake.identification.repair import RepairOptions, run_repair
+    from robust_drake.identification.report import signal
     from robust_drake.identification.selection import MIN_GAIN
 
     kinds = None
@@ -99,8 +100,11 @@ def run(args) -> int:
     header = ["model", *[f"fit j{j}" for j in range(n)], *[f"val j{j}" for j in range(n)]]
     print(f"robot {rep['robot']}, {rep['samples']} fit samples, RMS torque residual [N m]:")
     print(format_table(rows, header))
+    print(f"verdict: {rep['verdict']} ({rep['verdict_reason']})")
+    for d in rep.get("rejected_effects") or []:
+        print(f"  dropped {d['label']}: {d['reason']}")
     print(f"unexplained_structure: {str(rep['unexplained_structure']).lower()}"
-          + (f" ({', '.join(w['variable'] + ' on joint ' + str(w['joint']) for w in rep['unexplained_where'])})"
+          + (f" ({', '.join(signal(w['variable']) + ' on joint ' + str(w['joint']) for w in rep['unexplained_where'])})"
              if rep["unexplained_structure"] else ""))
     est = rep.get("estimator") or {}
     if est.get("hausman"):

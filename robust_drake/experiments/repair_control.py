@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import os
 
-import numpy as np
 
 from robust_drake.errors import RobustDrakeError
 
@@ -26,38 +25,13 @@ TRUE_EFFECT = ("position_dependent", 1, {"amplitude": 0.6, "phase": 0.5, "harmon
 
 
 def model_feedforward(report: dict, stage: str = "final"):
-    """``f(q, v) -> torques`` [N m]: what the motors must add for the identified friction
-    (``fc_j sgn(v_j) + fv_j v_j``) and, for ``stage="final"``, the identified effects.
+    """``f(q, v) -> torques`` [N m] of the identified model ``stage`` ("baseline" or "final"):
+    :meth:`~robust_drake.identification.model.IdentifiedModel.feedforward` of the model the
+    repair report carries (friction ``fc_j sgn(v_j) + fv_j v_j`` plus, for the final model, the
+    effects a controller can compute from (q, v); the others are listed in ``skipped``)."""
+    from robust_drake.identification.model import IdentifiedModel
 
-    Uses the report's own convention: tau_measured = Y theta + friction + columns @ coef, and
-    an effect block's generalized force is -(columns @ coef). Effects that need the torque or
-    the acceleration, or that change the plant itself, are left out (listed in ``skipped``).
-    """
-    from robust_drake.identification.effects import EFFECTS, make_effect
-
-    params = report[stage]["parameters"]
-    n = sum(1 for k in params if k.startswith("fc"))
-    fc = np.array([params.get(f"fc{j + 1}", 0.0) for j in range(n)])
-    fv = np.array([params.get(f"fv{j + 1}", 0.0) for j in range(n)])
-    terms, skipped = [], []
-    if stage == "final":
-        for e in report["effects"]:
-            cls = EFFECTS[e["kind"]]
-            if cls.needs_tau or cls.needs_qdd or cls.modifies_plant:
-                skipped.append(e["kind"])
-                continue
-            shape = {k: e["parameters"][k] for k in cls.default_shape if k in e["parameters"]}
-            terms.append((make_effect(e["kind"], e["joint"], **shape), np.asarray(e["coefficients"], float)))
-
-    def feedforward(q, v):
-        tau = fc * np.sign(v) + fv * v
-        for eff, coef in terms:
-            tau = tau - eff.generalized_force(q, v, None, coef)
-        return tau
-
-    feedforward.skipped = skipped
-    feedforward.terms = [eff.name for eff, _ in terms]
-    return feedforward
+    return IdentifiedModel.from_report(report, stage).feedforward()
 
 
 def true_arm_effects():

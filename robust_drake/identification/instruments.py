@@ -27,6 +27,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import stats
 
+from robust_drake.identification.fitting import ColumnCache, fit_model, predict_tau
 from robust_drake.identification.least_squares import LSResult, RANK_TOL, identifiability
 
 #: instrument cut-off as a fraction of the data cut-off
@@ -96,8 +97,6 @@ def hausman(theta_ls, cov_ls, theta_iv, cov_iv, alpha: float = ALPHA) -> dict:
 def fit_model_iv(cache, icache, effects, weights, n_eff_factor: float = 1.0):
     """IV counterpart of ``selection.fit_model``: columns from ``cache``, instruments from
     ``icache`` (same rows, lower cut-off). ``residual``/``rms`` are output errors."""
-    from robust_drake.identification.selection import predict_tau
-
     Y, names, slices = cache.model(effects)
     Z, _, _ = icache.model(effects)
     if Y.shape != Z.shape:
@@ -117,7 +116,6 @@ def cutoff_sweep(paths, robot, regressor, cutoffs, torque: str = "tau_meas", wei
     Returns ``{"cutoff_hz": [...], "names": base names, "least_squares": [[...] per cut-off],
     "instrumental_variables": [[...]], "nominal": URDF base parameters}``."""
     from robust_drake.identification.data import load
-    from robust_drake.identification.selection import ColumnCache, fit_model
 
     p0 = len(regressor.base_names)
     out = {"cutoff_hz": [float(c) for c in cutoffs], "names": list(regressor.base_names),

@@ -78,6 +78,7 @@ class LSResult:
     N: int
     rss_weighted: float
     warnings: list[str] = field(default_factory=list)
+    cov: np.ndarray | None = None  # covariance of theta (same scaling as ``se``)
 
     @property
     def p(self) -> int:
@@ -163,7 +164,8 @@ def solve_ls(Y: np.ndarray, tau: np.ndarray, names: list[str], weights=None,
     r_w = resid * w[None, :]
     rss_w = float(np.sum(r_w**2))
     dof = max(N * n - rank, 1)
-    se = np.sqrt(np.maximum(np.diag(cov0) * rss_w / dof, 0.0))
+    cov = np.asarray(cov0, float) * rss_w / dof
+    se = np.sqrt(np.maximum(np.diag(cov), 0.0))
     for u in unident:
         se[names.index(u)] = np.inf
     msgs = []
@@ -177,7 +179,7 @@ def solve_ls(Y: np.ndarray, tau: np.ndarray, names: list[str], weights=None,
     rms = np.sqrt(np.mean(resid**2, axis=0))
     return LSResult(
         theta=theta, names=list(names), se=se, sigma=rms, weights=w, cond=cond, rank=rank,
-        unidentifiable=unident, residual=resid, rms=rms, N=N, rss_weighted=rss_w, warnings=msgs,
+        unidentifiable=unident, residual=resid, rms=rms, N=N, rss_weighted=rss_w, warnings=msgs, cov=cov,
     )
 
 

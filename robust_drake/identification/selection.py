@@ -28,10 +28,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from robust_drake.identification.data import IdentData
-from robust_drake.identification.least_squares import (
-    LSResult, friction_columns, identifiability, parallel_filter, rigid_body_columns, solve_ls,
-    solve_wls,
+from robust_drake.identification.fitting import (  # noqa: F401  (re-exported)
+    ColumnCache, effect_label, fit_model, implicit_mask, predict, predict_tau,
 )
+from robust_drake.identification.instruments import solve_iv
+from robust_drake.identification.least_squares import identifiability, solve_ls  # noqa: F401
 
 MIN_GAIN = 0.05
 CV_FOLDS = 4
@@ -69,55 +70,6 @@ def implausible(effect, coef) -> str:
     return ""
 
 
-def effect_label(effect) -> str:
-    if isinstance(getattr(effect, "name", None), str):
-        return effect.name
-    j = getattr(effect, "joint", None)
-    extra = ""
-    for attr in ("label",):
-        if hasattr(effect, attr) and isinstance(getattr(effect, attr), str):
-            return getattr(effect, attr)
-    shape = getattr(effect, "shape", None)
-    if shape:
-        extra = "(" + ", ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in shape.items()) + ")"
-    return f"{effect.kind}" + (f"[joint {j}]" if j is not None else "") + extra
-
-
-class ColumnCache:
-    """Parallel-filtered columns of one dataset: rigid body, friction, and each effect (memoised)."""
-
-    def __init__(self, data: IdentData, regressor):
-        self.data = data
-        Yrb, nrb = rigid_body_columns(regressor, data)
-        Yfr, nfr = friction_columns(data)
-        self.base = parallel_filter(data, np.concatenate([Yrb, Yfr], axis=2))
-        self.base_names = nrb + nfr
-        self.n_rigid = len(nrb)
-        self._effects: dict = {}
-
-    def effect(self, effect) -> tuple[np.ndarray, list[str]]:
-        # keyed by the object and holding a reference to it (an id() key could be reused)
-        key = (effect_label(effect), id(effect))
-        if key not in self._effects:
-            Y, names = effect.columns(self.data)
-            Y = np.asarray(Y, float)
-            if Y.ndim == 2:
-                Y = Y[:, :, None]
-            self._effects[key] = (parallel_filter(self.data, Y), list(names), effect)
-        return self._effects[key][:2]
-
-    def model(self, effects) -> tuple[np.ndarray, list[str], list[slice]]:
-        blocks, names, slices = [self.base], list(self.base_names), []
-        start = self.base.shape[2]
-        for e in effects:
-            Y, nm = self.effect(e)
-            blocks.append(Y)
-            names += [f"{effect_label(e)}:{x}" for x in nm]
-            slices.append(slice(start, start + Y.shape[2]))
-            start += Y.shape[2]
-        return np.concatenate(blocks, axis=2), names, slices
-
-
 def blocked_folds(data: IdentData, k: int = CV_FOLDS) -> list[np.ndarray]:
     """Test masks: every file cut into ``k`` contiguous blocks; fold i holds out block i of each."""
     fold = np.zeros(data.N, dtype=int)
@@ -125,44 +77,6 @@ def blocked_folds(data: IdentData, k: int = CV_FOLDS) -> list[np.ndarray]:
         idx = np.nonzero(data.segment == s)[0]
         fold[idx] = np.minimum((np.arange(len(idx)) * k) // len(idx), k - 1)
     return [fold == i for i in range(k)]
-
-
-def implicit_mask(effects, slices, p: int) -> tuple[list, np.ndarray]:
-    """Effects whose columns use the measured torque (torque_scale, load-dependent friction):
-    their prediction is implicit, tau_hat = m + Phi(tau_hat) c. Returns ([(effect, slice)], mask
-    of the explicit columns)."""
-    imp = [(e, sl) for e, sl in zip(effects, slices)
-           if getattr(e, "needs_tau", False) and not getattr(e, "uses_taud", False)]
-    mask = np.ones(p, bool)
-    for _, sl in imp:
-        mask[sl] = False
-    return imp, mask
-
-
-def predict_tau(cache: "ColumnCache", effects, theta, rows=None, iterations: int = 30) -> np.ndarray:
-    """Output-error prediction of the measured torque (N, n).
-
-    Equation error r = tau - Y theta is the right quantity to *fit* but not to *judge* a model
-    whose columns contain tau itself: a torque_scale column -tau_j with coefficient -> -1 would
-    shrink the equation error of joint j without predicting anything. So models are judged on
-    tau - tau_hat with tau_hat the fixed point of tau_hat = Y_explicit theta + Phi(tau_hat) c
-    (unfiltered Phi; a contraction for the admissible |c| < 1, see ``PLAUSIBLE``)."""
-    Y, _, slices = cache.model(effects)
-    rows = slice(None) if rows is None else rows
-    imp, mask = implicit_mask(effects, slices, Y.shape[2])
-    m = Y[rows][:, :, mask] @ theta[mask]
-    if not imp:
-        return m
-    d = cache.data
-    q, qd, qdd = d.q[rows], d.qd[rows], d.qdd[rows]
-    tau_hat = m.copy()
-    for _ in range(iterations):
-        new = m + sum(e.evaluate_columns(q, qd, qdd, tau_hat) @ theta[sl] for e, sl in imp)
-        done = np.max(np.abs(new - tau_hat)) < 1e-10
-        tau_hat = new
-        if done:
-            break
-    return tau_hat
 
 
 def cv_score(cache: "ColumnCache", effects, weights, folds, icache=None) -> float:
@@ -245,8 +159,6 @@ def forward_select(cache: ColumnCache, candidates: list, min_gain: float = MIN_G
     ``weights`` (n,): per-joint row weights (default 1 / baseline residual RMS of each joint).
     ``icache``: instrument columns; every fit, held-out
     score and BIC then uses instrumental variables (``instruments.py``)."""
-    from robust_drake.identification.instruments import solve_iv
-
     data = cache.data
     tau = data.tau
     if weights is None:
@@ -318,20 +230,6 @@ def forward_select(cache: ColumnCache, candidates: list, min_gain: float = MIN_G
         pool = [e for e in pool if not (e.kind == e_best.kind and e.joint == e_best.joint)]
     return SelectionResult(chosen=chosen, steps=steps, baseline_score=baseline_score,
                            final_score=score, weights=weights, ranking=ranking)
-
-
-def fit_model(cache: ColumnCache, effects, weights=None) -> tuple[LSResult, list[slice]]:
-    """Final LS fit of baseline + effects on all fit data with fixed per-joint ``weights``
-    (the selection's baseline weights; None = OLS). ``residual``/``rms`` are output errors."""
-    Y, names, slices = cache.model(effects)
-    res = solve_ls(Y, cache.data.tau, names, weights=weights)
-    res.residual = cache.data.tau - predict_tau(cache, effects, res.theta)
-    res.rms = np.sqrt(np.mean(res.residual**2, axis=0))
-    return res, slices
-
-
-def predict(cache: ColumnCache, effects, fit: LSResult) -> np.ndarray:
-    return predict_tau(cache, effects, fit.theta)
 
 
 __all__ = ["ColumnCache", "forward_select", "fit_model", "predict", "predict_tau", "implausible", "blocked_folds", "cv_score",

@@ -1,0 +1,118 @@
+"""Columns of a model and what it predicts: the shared base of selection, IV and repair.
+
+``ColumnCache`` holds the parallel-filtered columns of one dataset (rigid body + Coulomb/viscous
+friction + each effect's columns); ``predict_tau`` is the output-error prediction of the measured
+torque (implicit for effects whose columns contain the torque); ``fit_model`` the final weighted
+least-squares fit. Kept below ``selection.py`` and ``instruments.py`` so neither imports the other
+in a cycle.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from robust_drake.identification.data import IdentData
+from robust_drake.identification.least_squares import (
+    LSResult, friction_columns, parallel_filter, rigid_body_columns, solve_ls,
+)
+
+
+def effect_label(effect) -> str:
+    if isinstance(getattr(effect, "name", None), str):
+        return effect.name
+    j = getattr(effect, "joint", None)
+    extra = ""
+    for attr in ("label",):
+        if hasattr(effect, attr) and isinstance(getattr(effect, attr), str):
+            return getattr(effect, attr)
+    shape = getattr(effect, "shape", None)
+    if shape:
+        extra = "(" + ", ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in shape.items()) + ")"
+    return f"{effect.kind}" + (f"[joint {j}]" if j is not None else "") + extra
+
+
+class ColumnCache:
+    """Parallel-filtered columns of one dataset: rigid body, friction, and each effect (memoised)."""
+
+    def __init__(self, data: IdentData, regressor):
+        self.data = data
+        Yrb, nrb = rigid_body_columns(regressor, data)
+        Yfr, nfr = friction_columns(data)
+        self.base = parallel_filter(data, np.concatenate([Yrb, Yfr], axis=2))
+        self.base_names = nrb + nfr
+        self.n_rigid = len(nrb)
+        self._effects: dict = {}
+
+    def effect(self, effect) -> tuple[np.ndarray, list[str]]:
+        # keyed by the object and holding a reference to it (an id() key could be reused)
+        key = (effect_label(effect), id(effect))
+        if key not in self._effects:
+            Y, names = effect.columns(self.data)
+            Y = np.asarray(Y, float)
+            if Y.ndim == 2:
+                Y = Y[:, :, None]
+            self._effects[key] = (parallel_filter(self.data, Y), list(names), effect)
+        return self._effects[key][:2]
+
+    def model(self, effects) -> tuple[np.ndarray, list[str], list[slice]]:
+        blocks, names, slices = [self.base], list(self.base_names), []
+        start = self.base.shape[2]
+        for e in effects:
+            Y, nm = self.effect(e)
+            blocks.append(Y)
+            names += [f"{effect_label(e)}:{x}" for x in nm]
+            slices.append(slice(start, start + Y.shape[2]))
+            start += Y.shape[2]
+        return np.concatenate(blocks, axis=2), names, slices
+
+
+def implicit_mask(effects, slices, p: int) -> tuple[list, np.ndarray]:
+    """Effects whose columns use the measured torque (torque_scale, load-dependent friction):
+    their prediction is implicit, tau_hat = m + Phi(tau_hat) c. Returns ([(effect, slice)], mask
+    of the explicit columns)."""
+    imp = [(e, sl) for e, sl in zip(effects, slices)
+           if getattr(e, "needs_tau", False) and not getattr(e, "uses_taud", False)]
+    mask = np.ones(p, bool)
+    for _, sl in imp:
+        mask[sl] = False
+    return imp, mask
+
+
+def predict_tau(cache: "ColumnCache", effects, theta, rows=None, iterations: int = 30) -> np.ndarray:
+    """Output-error prediction of the measured torque (N, n).
+
+    Equation error r = tau - Y theta is the right quantity to *fit* but not to *judge* a model
+    whose columns contain tau itself: a torque_scale column -tau_j with coefficient -> -1 would
+    shrink the equation error of joint j without predicting anything. So models are judged on
+    tau - tau_hat with tau_hat the fixed point of tau_hat = Y_explicit theta + Phi(tau_hat) c
+    (unfiltered Phi; a contraction for the admissible |c| < 1, see ``PLAUSIBLE``)."""
+    Y, _, slices = cache.model(effects)
+    rows = slice(None) if rows is None else rows
+    imp, mask = implicit_mask(effects, slices, Y.shape[2])
+    m = Y[rows][:, :, mask] @ theta[mask]
+    if not imp:
+        return m
+    d = cache.data
+    q, qd, qdd = d.q[rows], d.qd[rows], d.qdd[rows]
+    tau_hat = m.copy()
+    for _ in range(iterations):
+        new = m + sum(e.evaluate_columns(q, qd, qdd, tau_hat) @ theta[sl] for e, sl in imp)
+        done = np.max(np.abs(new - tau_hat)) < 1e-10
+        tau_hat = new
+        if done:
+            break
+    return tau_hat
+
+
+def fit_model(cache: ColumnCache, effects, weights=None) -> tuple[LSResult, list[slice]]:
+    """Final LS fit of baseline + effects on all fit data with fixed per-joint ``weights``
+    (the selection's baseline weights; None = OLS). ``residual``/``rms`` are output errors."""
+    Y, names, slices = cache.model(effects)
+    res = solve_ls(Y, cache.data.tau, names, weights=weights)
+    res.residual = cache.data.tau - predict_tau(cache, effects, res.theta)
+    res.rms = np.sqrt(np.mean(res.residual**2, axis=0))
+    return res, slices
+
+
+def predict(cache: ColumnCache, effects, fit: LSResult) -> np.ndarray:
+    return predict_tau(cache, effects, fit.theta)

@@ -1,0 +1,365 @@
+"""The repair's report: ``report.json`` and ``report.md`` rendered from ONE result.
+
+:func:`build_report` turns the pipeline's :class:`RepairResult` (``stages.py``) into the strict
+JSON dictionary; :func:`render_markdown` reads only that dictionary, so the two files can never
+disagree (one statement per fact: e.g. the Hausman test's significance is
+``estimator.hausman.significant`` in both, the estimator actually used is ``estimator.method``).
+Joints are numbered from 0 everywhere, with the URDF's joint names (``joint_names``); the
+residual's signal names (``q2``, ``qd1``, 1-based as in the CSV columns) are shown as
+``q[1]``, ``qd[0]`` in the markdown.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from dataclasses import dataclass
+
+import numpy as np
+
+from robust_drake.identification import residual as R
+from robust_drake.identification.stages import identified_models, reference_rms
+
+
+@dataclass
+class RepairResult:
+    """Everything the stages produced (see ``stages.py`` for the types)."""
+
+    opts: object
+    inputs: object
+    baseline: object
+    estimator: object
+    selection: object
+    guard: object
+    final: object
+    nominal: dict | None
+    consistent: object
+    replay: dict
+    warnings: list
+
+
+def _rms(r):
+    return [float(x) for x in np.sqrt(np.mean(np.asarray(r) ** 2, axis=0))]
+
+
+def strict(obj):
+    """The report as strict JSON values: numpy -> Python, NaN/inf -> None (``report.json`` must
+    load in any JSON parser; an unidentifiable parameter's infinite standard error becomes null)."""
+    if isinstance(obj, dict):
+        return {k: strict(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [strict(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return strict(obj.tolist())
+    if isinstance(obj, np.generic):
+        obj = obj.item()
+    if isinstance(obj, float) and not np.isfinite(obj):
+        return None
+    return obj
+
+
+def json_default(o):
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, np.generic):
+        return o.item()
+    return str(o)
+
+
+def verdict(res: RepairResult) -> dict:
+    """``repaired`` when the final (free-fit) model differs from the baseline: at least one
+    residual-selected effect, or the IV estimate, survived the never-worse rule."""
+    kept = bool(res.selection.chosen) or res.estimator.iv
+    named = [e["label"] for e in res.final.effects_out if e.get("source") == "parameter_shift"]
+    tried = [s for s in res.selection.steps if s.accepted]
+    if kept:
+        why = (f"{len(res.selection.chosen)} effect(s) kept ({res.estimator.method}); no joint validates worse "
+               f"than the baseline by more than {res.guard.tolerance:.0%} and the replay is not worse")
+    elif not tried and not res.guard.dropped:
+        why = "nothing kept: no candidate passed the selection"
+    else:
+        why = ("nothing kept: every effect tried made a joint's validation or the replay worse than the "
+               "baseline (see rejected_effects)")
+    if named:
+        why += f"; named from the URDF comparison (not part of the fitted model): {', '.join(named)}"
+    return {"verdict": "repaired" if kept else "no_improvement", "verdict_reason": why}
+
+
+def build_report(res: RepairResult) -> dict:
+    """The strict ``report.json`` dictionary (contract keys in ``repair.py``'s docstring)."""
+    inp, base, fin, sel = res.inputs, res.baseline, res.final, res.selection
+    ident = base.fit.as_dict()
+    unident = list(base.fit.unidentifiable) + [
+        f"joint {j} ({inp.joint_names[j]}, within {inp.data.position_counts[j]:.0f} encoder counts)" for j in inp.frozen]
+    final_ana = R.analyse(inp.fit, fin.fit.residual)
+    base_model, model = _models(res)
+    report = {
+        "robot": str(res.opts.robot),
+        "joint_names": list(inp.joint_names),
+        "samples": int(inp.fit.N),
+        "samples_validate": int(inp.val.N),
+        "torque": res.opts.torque,
+        "baseline": {"rms_fit": _rms(base.fit.residual), "rms_validate": base.rms_validate,
+                     "parameters": ident["parameters"], "standard_errors": ident["standard_errors"]},
+        "effects": fin.effects_out,
+        "rejected_effects": [{**d, "kept": False} for d in res.guard.dropped],
+        "final": {"rms_fit": _rms(fin.fit.residual), "rms_validate": _rms(fin.val_residual),
+                  "parameters": fin.fit.as_dict()["parameters"],
+                  "standard_errors": fin.fit.as_dict()["standard_errors"]},
+        **verdict(res),
+        "never_worse": {"tolerance": res.guard.tolerance, "attempts": res.guard.attempts,
+                        "rule": "an effect is kept only if no joint's validation RMS torque error exceeds the "
+                                "baseline's (with IV: the larger of the LS and IV baselines') by more than the "
+                                "tolerance (relative); the model "
+                                "(effects and the IV switch) only if no joint's replay RMS position error on the "
+                                "validation data exceeds the least-squares baseline's by more than the tolerance",
+                        "reference_rms_validate": list(_reference(res))},
+        "unexplained_structure": bool(final_ana["unexplained_structure"]),
+        "nominal": res.nominal,
+        "estimator": res.estimator.report,
+        "unexplained_where": final_ana["where"],
+        "replay": res.replay,
+        "consistent": res.consistent.report,
+        "identifiability": {"condition_number": base.fit.cond, "rank": base.fit.rank,
+                            "unidentifiable": unident, "unidentifiable_joints": inp.frozen},
+        "units": inp.units,
+        "selection": {"steps": [s.as_dict() for s in sel.steps], "min_gain": res.opts.min_gain,
+                      "candidates": len(sel.candidates), "last_ranking": sel.ranking[:12],
+                      "rule": "blocked 4-fold held-out error, gain >= min_gain and BIC (N_eff) decreasing"},
+        "residual": {"baseline": base.analysis, "final": final_ana,
+                     "final_validate": R.analyse(inp.val, fin.val_residual)},
+        "data": {"fit": inp.fit.summary(), "validate": inp.val.summary(),
+                 "validation_source": "files" if inp.validate_paths else "tail of fit files"},
+        "warnings": list(res.warnings),
+        "notes": inp.notes,
+        "model": model.to_json(),
+        "baseline_model": base_model.to_json(),
+    }
+    return strict(report)
+
+
+def _reference(res: RepairResult):
+    return [float(x) for x in reference_rms(res.baseline, res.estimator)]
+
+
+def _models(res: RepairResult):
+    return identified_models(res.inputs, res.baseline, res.estimator, res.selection, res.final)
+
+
+def write_plots(folder, res: RepairResult) -> list[str]:
+    """Residual and torque plots of the validation data into ``folder``; returns the file names."""
+    from robust_drake.plotting import subplots
+
+    inp, base, fin = res.inputs, res.baseline, res.final
+    fit, val = inp.fit, inp.val
+    paths = [
+        R.plot_residuals(fit, base.fit.residual, os.path.join(folder, "residual_fit.png"),
+                         "fit data: residual of the baseline (red) and of the repaired model (blue)",
+                         other=fin.fit.residual),
+        R.plot_residuals(val, base.val_residual, os.path.join(folder, "residual_validate.png"),
+                         "validation data: baseline (red) vs repaired (blue)", other=fin.val_residual),
+    ]
+    fig, axes = subplots(val.n, 1, figsize=(11, 2.6 * val.n), squeeze=False)
+    pb, pf = val.tau - base.val_residual, val.tau - fin.val_residual
+    for j in range(val.n):
+        ax = axes[j, 0]
+        ax.plot(val.t, val.tau[:, j], "k", lw=1, label="measured")
+        ax.plot(val.t, pb[:, j], "r", lw=0.8, label="baseline")
+        ax.plot(val.t, pf[:, j], "b", lw=0.8, label="repaired")
+        ax.set_ylabel(f"tau joint {j} ({inp.joint_names[j]}) [N m]")
+        ax.legend(fontsize=7, loc="upper right")
+    axes[-1, 0].set_xlabel("t [s] (validation files back to back)")
+    fig.tight_layout()
+    p = os.path.join(folder, "torque_validate.png")
+    fig.savefig(p, dpi=80)
+    paths.append(p)
+    return [os.path.basename(x) for x in paths]
+
+
+# ------------------------------------------------------------------------------------ markdown
+def _num(x, spec: str) -> str:
+    """``format(x, spec)``, or "n/a" for a value the strict report holds as null (NaN/inf)."""
+    return "n/a" if x is None else format(x, spec)
+
+
+def _nums(xs, spec: str = ".4f") -> str:
+    return ", ".join(_num(x, spec) for x in xs)
+
+
+def _names(rep: dict) -> list[str]:
+    n = len(rep["baseline"]["rms_fit"])
+    names = rep.get("joint_names") or []
+    return names if len(names) == n else [f"j{i}" for i in range(n)]
+
+
+def _joint(rep: dict, j) -> str:
+    return "all joints" if j is None else f"joint {j} ({_names(rep)[j]})"
+
+
+_SIGNAL = re.compile(r"^(sign_qd|qdd|qd|q|tau)(\d+)$")
+
+
+def signal(name: str) -> str:
+    """A residual variable's 1-based CSV name (``q2``) in the report's 0-based numbering (``q[1]``)."""
+    m = _SIGNAL.match(str(name))
+    return f"{m.group(1)}[{int(m.group(2)) - 1}]" if m else str(name)
+
+
+def _md_header(rep: dict) -> list[str]:
+    d = rep["data"]["fit"]
+    return [f"# Repair report: {rep['robot']}", "",
+            f"**Verdict: {rep.get('verdict', 'n/a')}** ({rep.get('verdict_reason', '')}).", "",
+            f"Joints (numbered from 0, URDF names): "
+            + ", ".join(f"{j} = `{nm}`" for j, nm in enumerate(_names(rep))) + ".", "",
+            f"Fit samples: {rep['samples']} ({len(d['sources'])} files); validation samples: "
+            f"{rep['samples_validate']} ({rep['data']['validation_source']}). Torque column: `{rep['torque']}`.",
+            f"Filter: {d['filter']['method']}, cut-off {d['filter']['cutoff_hz']} Hz, "
+            f"{d['filter']['trim_samples']} samples trimmed at each file end.", ""]
+
+
+def _md_errors(rep: dict) -> list[str]:
+    names = _names(rep)
+    n = len(names)
+    row = lambda label, a, b: f"| {label} | " + " | ".join(a) + " | " + " | ".join(b) + " |"  # noqa: E731
+    L = ["## Error before and after (RMS torque residual per joint, N m)", "",
+         "| model | " + " | ".join(f"fit {j} {nm}" for j, nm in enumerate(names)) + " | "
+         + " | ".join(f"validate {j} {nm}" for j, nm in enumerate(names)) + " |", "|---|" + "---|" * (2 * n)]
+    L.append(row("baseline (rigid body + Coulomb + viscous)", [_num(x, ".4f") for x in rep["baseline"]["rms_fit"]],
+                 [_num(x, ".4f") for x in rep["baseline"]["rms_validate"]]))
+    for e in rep["effects"]:
+        L.append(row(f"+ {e['label']}", [""] * n, [_num(x, ".4f") for x in e["rms_validate_after"]]))
+    L.append(row("**repaired**", [_num(x, ".4f") for x in rep["final"]["rms_fit"]],
+                 [f"**{_num(x, '.4f')}**" for x in rep["final"]["rms_validate"]]))
+    if rep.get("consistent"):
+        c = rep["consistent"]
+        L.append(row(f"repaired, physically consistent ({c['solver']})", [_num(x, ".4f") for x in c["rms_fit"]],
+                     [_num(x, ".4f") for x in c["rms_validate"]]))
+    return L
+
+
+def _md_effects(rep: dict) -> list[str]:
+    L = ["", "## Effects kept", ""]
+    if not rep["effects"]:
+        L.append("None." + (" No candidate passed the stopping rule." if not rep.get("rejected_effects") else ""))
+    for e in rep["effects"]:
+        ps = ", ".join(f"{k} = {_num(v, '.4g')}" if isinstance(v, float) else f"{k} = {v}"
+                       for k, v in e["parameters"].items())
+        how = ("held-out error -" + _num(e["heldout_gain"], ".1%") if e.get("heldout_gain") is not None
+               else "named from the base-parameter shift against the URDF")
+        L.append(f"- **{e['kind']}** ({_joint(rep, e['joint'])}): {ps}; {how}; "
+                 f"confidence {e['confidence']}. Why plausible: {e['plausibility']}.")
+    nw = rep.get("never_worse") or {}
+    if rep.get("rejected_effects"):
+        L += ["", f"Tried and dropped by the never-worse rule (tolerance {_num(nw.get('tolerance'), '.0%')}; "
+              f"{nw.get('rule', '')}):", ""]
+        L += [f"- {d['label']} ({_joint(rep, d['joint'])}): {d['reason']}" for d in rep["rejected_effects"]]
+    return L
+
+
+def _md_estimator(rep: dict) -> list[str]:
+    est = rep.get("estimator") or {}
+    if not est.get("hausman"):
+        return []
+    h = est["hausman"]
+    used = "instrumental variables" if est["method"] == "instrumental_variables" else "least squares"
+    if h["significant"]:
+        rf = est.get("replay_fit")
+        verdict = "**significant**" + (
+            f"; the IV model replays the fit data's motion with mean RMS q ratio {_num(rf['ratio'], '.2f')} "
+            f"against LS (required < {_num(rf['required_ratio'], '.2f')})" if rf else "")
+    else:
+        verdict = "**not significant**"
+    return ["", "## Errors in variables (estimator)", "",
+            "The regressor is built from positions differentiated twice; what those columns carry and "
+            "the torque does not cause (motion through gear backlash at reversals, vibration, "
+            "differentiated encoder noise) biases least squares towards smaller parameters. Test: instrumental "
+            f"variables (the same columns low-passed at {est['instrument_cutoff_hz']:g} Hz) against least squares, "
+            f"Durbin-Wu-Hausman statistic {_num(h['statistic'], '.1f')} over {h['dof']} dof (1 % limit "
+            f"{_num(h['limit'], '.1f')}): {verdict}. **Estimator used: {used}.**", "",
+            "Baseline structure with the IV estimate (the estimator's share of the change): validate "
+            + _nums(est["baseline_iv"]["rms_validate"]) + " N m. On a held-out "
+            "tail of the *same* runs the IV torque error can be higher than LS's (LS is the best "
+            "equation-error predictor given equally noisy columns); the replay below judges the motion."]
+
+
+def _md_nominal(rep: dict) -> list[str]:
+    nom = rep.get("nominal")
+    if not nom:
+        return []
+    L = ["", "## Against the URDF's parameters", "",
+         "Effects whose columns lie in the span of the rigid-body regressor (a tool payload, a rotor "
+         "inertia already inside a base parameter) are absorbed exactly by a free fit; they show up "
+         "only as a shift of the base parameters away from the URDF's. Shift chi^2 "
+         f"{_num(nom['chi2'], '.1f')} over {nom['dof']} parameters (99 % limit {_num(nom['chi2_limit'], '.1f')}; URDF "
+         f"trusted to {_num(nom['sigma_rel'], '.0%')} of each parameter): "
+         + ("**not significant**." if not nom["significant"] else
+            f"**explained by {nom['named']}**." if nom.get("named") else
+            "**significant and not explained** by any in-span effect: the URDF's inertial "
+            "parameters and the fitted ones disagree in a way no single payload or rotor inertia explains."),
+         "", "URDF parameters with fitted friction/effects: validate " + _nums(nom["rms_validate"]) + " N m.", "",
+         "| in-span candidate | parameters | chi^2 after | decision |", "|---|---|---|---|"]
+    for c in nom["span_candidates"]:
+        ps = ", ".join(f"{k} = {_num(v, '.4g')}" for k, v in c["parameters"].items())
+        L.append(f"| {c['label']} | {ps} | {_num(c['chi2_after'], '.1f')} | {c['reason']} |")
+    return L
+
+
+def _md_selection(rep: dict) -> list[str]:
+    L = ["", "## Selection steps", "",
+         "| step | best candidate | held-out score before -> after | BIC before -> after | decision |",
+         "|---|---|---|---|---|"]
+    for s in rep["selection"]["steps"]:
+        L.append(f"| {s['step']} | {s['label']} | {_num(s['score_before'], '.4f')} -> {_num(s['score_after'], '.4f')} | "
+                 f"{_num(s['bic_before'], '.1f')} -> {_num(s['bic_after'], '.1f')} | "
+                 f"{'added' if s['accepted'] else 'stop'}: {s['reason']} |")
+    sel = rep["selection"]
+    return L + ["", f"Rule: {sel['rule']}; min gain {_num(sel['min_gain'], '.0%')}; {sel['candidates']} candidates. "
+                "Scores are relative to the baseline's held-out error. Effect labels give joints from 0.", ""]
+
+
+def _md_residual(rep: dict) -> list[str]:
+    L = ["## Residual structure", ""]
+    if rep["unexplained_structure"]:
+        where = "; ".join(f"{_joint(rep, w['joint'])} vs {signal(w['variable'])} (eta^2 = {_num(w['eta2'], '.3f')})"
+                          for w in rep["unexplained_where"])
+        col = rep["residual"]["final"]["coloured"]
+        L.append("**unexplained_structure: true.** The repaired model's residual still depends on the state "
+                 f"where no library effect explains it: {where or 'none by state'}"
+                 + (f"; coloured residual on joints {[c['joint'] for c in col]}" if col else "") + ".")
+    else:
+        L.append("unexplained_structure: false (no state variable explains >= "
+                 f"{_num(R.ETA_MIN, '.0%')} of the residual variance at p < {R.ALPHA}).")
+    L += ["", "Strongest state dependences of the final residual (eta^2 = share of residual variance explained by "
+          "a binned function of the variable; signals indexed from 0 like the joints):"]
+    for d in rep["residual"]["final"]["state_dependence_top"][:6]:
+        L.append(f"- {_joint(rep, d['joint'])} vs {signal(d['variable'])}: eta^2 = {_num(d['eta2'], '.3f')}")
+    return L
+
+
+def _md_replay_and_rest(rep: dict) -> list[str]:
+    L = []
+    rp = rep.get("replay") or {}
+    if rp.get("before") and rp.get("after"):
+        L += ["", "## Replay of the measured torques through the Drake plant", "",
+              f"{rp['after']['windows']} windows of {rp['after']['horizon_s']} s on the validation data, each reset "
+              f"from the measured state; inertias: {rp['after']['inertias']}.", "",
+              "| model | RMS q error per joint [rad] | RMS q error at window end [rad] |", "|---|---|---|",
+              f"| before (baseline) | {_nums(rp['before']['rms_q'])} | {_nums(rp['before']['rms_q_end'])} |",
+              f"| after (repaired + effect blocks) | {_nums(rp['after']['rms_q'])} | {_nums(rp['after']['rms_q_end'])} |"]
+    ident = rep["identifiability"]
+    L += ["", "## Identifiability", "",
+          f"Condition number of the column-normalised baseline regressor: {_num(ident['condition_number'], '.3g')}; "
+          f"unidentifiable: {', '.join(ident['unidentifiable']) or 'none'}."]
+    for key, title in (("warnings", "Warnings"), ("notes", "Notes")):
+        if rep.get(key):
+            L += ["", f"## {title}", ""] + [f"- {w}" for w in rep[key]]
+    if rep.get("plots"):
+        L += ["", "## Plots", ""] + [f"![{p}]({p})" for p in rep["plots"]]
+    return L
+
+
+def render_markdown(rep: dict) -> str:
+    """``report.md`` from the ``report.json`` dictionary (and nothing else)."""
+    L = (_md_header(rep) + _md_errors(rep) + _md_effects(rep) + _md_estimator(rep) + _md_nominal(rep)
+         + _md_selection(rep) + _md_residual(rep) + _md_replay_and_rest(rep))
+    return "\n".join(L) + "\n"
