@@ -52,8 +52,6 @@ from robust_drake.errors import DataError
 DEFAULT_CUTOFF_HZ = 8.0
 DEFAULT_FILTER_ORDER = 4
 MIN_SAMPLES = 50
-#: relative sampling jitter (std(dt)/mean(dt)) above which we refuse to filter as uniform data
-MAX_RELATIVE_JITTER = 0.2
 #: peak |q| above which positions "look like degrees" (4 pi rad = two full turns)
 DEGREE_THRESHOLD_RAD = 4.0 * np.pi
 #: |value| above which a position/velocity/acceleration/torque entry is refused as absurd (SI)
@@ -80,6 +78,11 @@ class FilterSettings:
     #: samples cut at *each* end of every file after filtering (filter start-up transients;
     #: default = 2 / cutoff seconds); reported, never silent
     trim_samples: int = 0
+    #: the trim rule in seconds (one value for every segment and for every load of the same
+    #: files, e.g. the instrument load: :func:`load_companion`); samples = round(trim_s / T_segment)
+    trim_s: float = 0.0
+    #: where the derivatives come from: "positions" (differentiated twice) or "logged velocities"
+    velocities: str = "positions"
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -127,6 +130,11 @@ class IdentData:
     warnings: list[str] = field(default_factory=list)
     #: per joint, the position range in encoder counts (largest over the files; data.position_counts)
     position_counts: np.ndarray | None = None
+    #: (N, n) True where a joint sticks (conditioning.stuck_mask): friction there is not a
+    #: function of velocity; velocity-friction fits should leave those rows out
+    stuck: np.ndarray | None = None
+    #: one dict per segment: source file, time-stamp diagnosis, period, samples, trim
+    conditioning: list = field(default_factory=list)
 
     def __post_init__(self):
         if self.segment is None:
@@ -149,7 +157,13 @@ class IdentData:
             self,
             t=self.t[index], q=self.q[index], qd=self.qd[index], qdd=self.qdd[index],
             tau=self.tau[index], segment=self.segment[index], warnings=list(self.warnings),
+            stuck=None if self.stuck is None else self.stuck[index],
         )
+
+    def segment_period(self, s) -> float:
+        """Sampling period of segment ``s`` [s] (every segment is on a uniform grid)."""
+        t = self.t[self.segment == s]
+        return float((t[-1] - t[0]) / (len(t) - 1)) if len(t) > 1 else float(self.dt)
 
     def segments(self) -> list["IdentData"]:
         """One IdentData per contiguous source file."""
@@ -181,6 +195,8 @@ class IdentData:
             warnings=[w for p in parts for w in p.warnings],
             position_counts=None if any(p.position_counts is None for p in parts)
             else np.max([p.position_counts for p in parts], axis=0),
+            stuck=None if any(p.stuck is None for p in parts) else np.concatenate([p.stuck for p in parts]),
+            conditioning=[c for p in parts for c in p.conditioning],
         )
 
     def summary(self) -> dict:
@@ -191,6 +207,9 @@ class IdentData:
             "q_range": [[float(a), float(b)] for a, b in zip(self.q.min(0), self.q.max(0))],
             "qd_max": [float(x) for x in np.abs(self.qd).max(0)],
             "tau_max": [float(x) for x in np.abs(self.tau).max(0)],
+            "segments": int(len(np.unique(self.segment))),
+            "stuck_fraction": None if self.stuck is None else [float(x) for x in self.stuck.mean(0)],
+            "conditioning": list(self.conditioning),
         }
 
 
@@ -383,14 +402,8 @@ def validate_raw(raw: RawData, n_joints: int | None = None, allow_degrees: bool 
             f"{MAX_SAMPLE_PERIOD_S:g} s"
         )
     jitter = float(np.std(dt) / np.mean(dt))
-    if jitter > MAX_RELATIVE_JITTER or dt.max() > 5 * dt_med:
-        raise DataError(
-            f"{src}: irregular sampling: median dt {dt_med:.4g} s, jitter std/mean {jitter:.3f}, "
-            f"largest gap {dt.max():.4g} s at t={raw.t[int(np.argmax(dt))]:.4g}; resample to a "
-            "uniform grid or split the file at the gap"
-        )
-    if jitter > 0.05:
-        warns.append(f"{os.path.basename(src)}: sampling jitter std(dt)/mean(dt) = {jitter:.3f}")
+    # jitter and gaps are handled, not refused: conditioning.py splits at gaps and puts every
+    # stretch on a uniform grid (prepare); the messages come from there
     span = np.ptp(raw.q, axis=0)
     for i in range(raw.n):
         if span[i] == 0.0:
@@ -459,9 +472,87 @@ def zero_phase_lowpass(x: np.ndarray, dt: float, cutoff_hz: float | None, order:
     return filtfilt(b, a, x, axis=0, padlen=padlen)
 
 
-def differentiate(t: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """Central differences on the actual time stamps (second order, one-sided at the ends)."""
+def differentiate(t, x: np.ndarray) -> np.ndarray:
+    """Central differences (second order, one-sided at the ends) along axis 0.
+
+    ``t`` is the uniform sampling period (a float, the only use in :func:`prepare`: derivatives
+    are taken on a uniform grid only) or, for callers with their own grid, the time stamps."""
     return np.gradient(x, t, axis=0, edge_order=2)
+
+
+def _condition_file(r: RawData, k: int, stats: dict, cutoff_hz, order, robot, trim_s, given: bool,
+                    velocities: str) -> tuple[list["IdentData"], list[str]]:
+    """One file -> one IdentData per usable gap-free segment (conditioning.py), plus messages."""
+    from robust_drake.identification import conditioning as C
+
+    name = os.path.basename(r.source)
+    msgs: list[str] = []
+    pieces = C.split_at_gaps(r.t)
+    if len(pieces) > 1:
+        dt_all = np.diff(r.t)
+        gaps = [float(dt_all[p.start - 1]) for p in pieces[1:]]
+        msgs.append(
+            f"{name}: {len(gaps)} logging gap(s) (longest {max(gaps) * 1e3:.3g} ms; a gap is a step > "
+            f"{C.GAP_FACTOR:g} x the median {np.median(dt_all) * 1e3:.3g} ms): split into {len(pieces)} segments")
+    out, dropped = [], []
+    for piece in pieces:
+        t = r.t[piece]
+        if len(t) < 4:
+            dropped.append((len(t), float(r.t[piece.start])))
+            continue
+        arrays = {"q": r.q[piece], "tau": r.tau[piece],
+                  "qd": None if r.qd is None else r.qd[piece], "qdd": None if r.qdd is None else r.qdd[piece]}
+        grid, arr, diag, m_msgs = C.condition_stretch(t, arrays, name)
+        msgs += m_msgs
+        T = diag.period
+        m = int(round(trim_s / T))
+        if len(grid) - 2 * m < MIN_SAMPLES:
+            dropped.append((len(grid), float(grid[0])))
+            continue
+        if given:
+            q, qd, qdd, tau = arr["q"], arr["qd"], arr["qdd"], arr["tau"]
+        else:
+            q = zero_phase_lowpass(arr["q"], T, cutoff_hz, order)
+            tau = zero_phase_lowpass(arr["tau"], T, cutoff_hz, order)
+            qd_q = differentiate(T, q)
+            if velocities == "logged":
+                qd = zero_phase_lowpass(arr["qd"], T, cutoff_hz, order)
+                msgs += C.velocity_agreement(qd[m:len(grid) - m], qd_q[m:len(grid) - m], name)
+            else:
+                qd = qd_q
+            qdd = differentiate(T, qd)
+        keep = slice(m, len(grid) - m)
+        msgs += C.derivative_consistency(qd[keep], qdd[keep], None if given else cutoff_hz, T, name)
+        stuck = C.stuck_mask(qd[keep], tau[keep], T)
+        nk = len(grid) - 2 * m
+        out.append(IdentData(
+            t=grid[keep].copy(), q=q[keep], qd=qd[keep], qdd=qdd[keep], tau=tau[keep], dt=T, robot=robot,
+            sources=[r.source], segment=np.full(nk, k), jitter=stats["jitter"], warnings=[],
+            position_counts=stats["counts"], stuck=stuck,
+            conditioning=[{"source": name, "start_s": float(grid[0]), "samples": int(nk), "trim_samples": m,
+                           "stamps": diag.to_dict()}],
+        ))
+        out[-1].filter.trim_samples = m
+    if dropped:
+        msgs.append(
+            f"{name}: {len(dropped)} segment(s) too short for the filters dropped (fewer than {MIN_SAMPLES} "
+            f"samples after trimming {trim_s:.3g} s at each end; lengths {[d[0] for d in dropped][:6]})")
+    return out, msgs
+
+
+def _stick_messages(segs: list["IdentData"], name: str) -> list[str]:
+    """One message per joint stuck on more than STICK_WARN_FRAC of one file's samples."""
+    from robust_drake.identification import conditioning as C
+
+    stuck = np.concatenate([sg.stuck for sg in segs])
+    msgs = []
+    for j, f in enumerate(stuck.mean(0)):
+        if f > C.STICK_WARN_FRAC:
+            msgs.append(
+                f"{name}: joint {j} (q{j + 1}) sticks on {f:.0%} of the samples (speed < {C.STICK_SPEED:g} "
+                f"rad/s for >= {C.STICK_MIN_S:g} s while its torque changes): friction there is not a "
+                "function of velocity; those rows are marked (IdentData.stuck)")
+    return msgs
 
 
 def prepare(
@@ -473,39 +564,52 @@ def prepare(
     use_given_derivatives: bool = False,
     allow_degrees: bool = False,
     trim_s: float | None = None,
+    velocities: str = "positions",
 ) -> IdentData:
-    """Validate, filter and differentiate one or more files into one :class:`IdentData`."""
+    """Validate, condition (conditioning.py: gaps -> segments, uniform grid), filter and
+    differentiate one or more files into one :class:`IdentData`.
+
+    ``trim_s`` [s] is cut at both ends of every segment (default ``2 / cutoff_hz``); it is
+    converted to samples per segment as ``round(trim_s / T_segment)`` from the raw stamps only,
+    so two loads of the same files with the same ``trim_s`` keep the same rows whatever their
+    cut-offs (:func:`load_companion`). ``velocities="logged"`` low-passes the log's ``qd*``
+    columns instead of differentiating the positions (only for real velocity sensors).
+    """
     raws = raw if isinstance(raw, (list, tuple)) else [raw]
     if not raws:
         raise DataError("no data files given")
-    parts = []
+    if velocities not in ("positions", "logged"):
+        raise DataError(f"velocities must be 'positions' or 'logged', got {velocities!r}")
+    parts, msgs = [], []
     for k, r in enumerate(raws):
         stats = validate_raw(r, n_joints=n_joints if n_joints is not None else raws[0].n,
                              allow_degrees=allow_degrees)
-        dt = stats["dt"]
+        msgs += stats["warnings"]
         given = use_given_derivatives and r.qd is not None and r.qdd is not None
-        if given:
-            q, qd, qdd, tau = r.q.copy(), r.qd.copy(), r.qdd.copy(), r.tau.copy()
-            fs = FilterSettings(cutoff_hz=None, order=0, derivatives="given")
-        else:
-            q = zero_phase_lowpass(r.q, dt, cutoff_hz, order)
-            tau = zero_phase_lowpass(r.tau, dt, cutoff_hz, order)
-            qd = differentiate(r.t, q)
-            qdd = differentiate(r.t, qd)
-            fs = FilterSettings(cutoff_hz=cutoff_hz, order=order)
+        if velocities == "logged" and not given and r.qd is None:
+            raise DataError(
+                f"{r.source}: no logged velocity columns (qd1..qd{r.n}) for velocities='logged'"
+                + ("; the DFKI vel_meas columns are finite differences of pos_meas, not a sensor"
+                   if r.fmt == "dfki" else ""))
         trim = trim_s if trim_s is not None else (2.0 / cutoff_hz if (cutoff_hz and not given) else 0.0)
-        m = int(round(trim / dt))
-        if len(r.t) - 2 * m < MIN_SAMPLES:
-            raise DataError(f"{r.source}: too short ({len(r.t)} samples) to trim {m} filter start-up "
-                            "samples at each end; record longer or pass a smaller trim")
-        fs.trim_samples = m
-        keep = slice(m, len(r.t) - m)
-        parts.append(IdentData(
-            t=r.t[keep].copy(), q=q[keep], qd=qd[keep], qdd=qdd[keep], tau=tau[keep], dt=dt, robot=robot,
-            sources=[r.source], filter=fs, segment=np.full(len(r.t) - 2 * m, k), jitter=stats["jitter"],
-            warnings=stats["warnings"], position_counts=stats["counts"],
-        ))
+        segs, m = _condition_file(r, k, stats, cutoff_hz, order, robot, trim, given, velocities)
+        msgs += m
+        if segs:
+            msgs += _stick_messages(segs, os.path.basename(r.source))
+        if not segs:
+            raise DataError(f"{r.source}: too short ({len(r.t)} samples) to trim {trim:.3g} s of filter "
+                            "start-up at each end of every segment; record longer or pass a smaller trim")
+        fs = (FilterSettings(cutoff_hz=None, order=0, derivatives="given") if given
+              else FilterSettings(cutoff_hz=cutoff_hz, order=order,
+                                  velocities="logged velocities" if velocities == "logged" else "positions"))
+        fs.trim_samples = segs[0].filter.trim_samples
+        fs.trim_s = float(trim)
+        for sg in segs:
+            sg.filter = fs
+        parts += segs
     data = IdentData.concatenate(parts) if len(parts) > 1 else parts[0]
+    data.dt = float(np.mean([p.dt for p in parts]))
+    data.warnings = list(dict.fromkeys(msgs))
     for w in data.warnings:
         warnings.warn(w, DataWarning, stacklevel=2)
     return data
@@ -515,13 +619,33 @@ def load(
     paths, robot: str | None = None, n_joints: int | None = None, torque: str = "tau_meas",
     cutoff_hz: float | None = DEFAULT_CUTOFF_HZ, order: int = DEFAULT_FILTER_ORDER,
     use_given_derivatives: bool = False, allow_degrees: bool = False, trim_s: float | None = None,
+    velocities: str = "positions",
 ) -> IdentData:
-    """Read + validate + filter one path or a list of paths (canonical or DFKI)."""
+    """Read + validate + condition + filter one path or a list of paths (canonical or DFKI)."""
     if isinstance(paths, (str, os.PathLike)):
         paths = [paths]
     raws = [read_csv(p, torque=torque) for p in paths]
     return prepare(raws, cutoff_hz=cutoff_hz, order=order, robot=robot, n_joints=n_joints,
-                   use_given_derivatives=use_given_derivatives, allow_degrees=allow_degrees, trim_s=trim_s)
+                   use_given_derivatives=use_given_derivatives, allow_degrees=allow_degrees, trim_s=trim_s,
+                   velocities=velocities)
+
+
+def load_companion(paths, like: IdentData, cutoff_hz: float | None, torque: str = "tau_meas",
+                   order: int | None = None) -> IdentData:
+    """The same files as ``like`` filtered at another cut-off (e.g. the instruments), on exactly
+    ``like``'s rows: the same trim rule (``like.filter.trim_s``), hence the same segments and
+    samples. Raises :class:`DataError` if the rows differ (they cannot, by construction)."""
+    other = load(paths, robot=like.robot, n_joints=like.n, torque=torque, cutoff_hz=cutoff_hz,
+                 order=like.filter.order if order is None else order, trim_s=like.filter.trim_s)
+    same_rows(like, other)
+    return other
+
+
+def same_rows(a: IdentData, b: IdentData) -> None:
+    """Raise :class:`DataError` unless ``a`` and ``b`` hold the same samples (segments, times)."""
+    if a.N != b.N or not np.array_equal(a.segment, b.segment) or not np.allclose(a.t, b.t, rtol=0, atol=1e-9):
+        raise DataError(f"two loads of the same files disagree: {a.N} vs {b.N} rows "
+                        f"({a.sources}); the trim rule must be shared (data.load_companion)")
 
 
 def from_arrays(t, q, tau, qd=None, qdd=None, robot=None, cutoff_hz=DEFAULT_CUTOFF_HZ,

@@ -534,8 +534,9 @@ def _choose_estimator(opts, fit_paths, have_validation, data, fit, val, cf, cv, 
     from robust_drake.identification.selection import n_effective
 
     fz = fit.filter.cutoff_hz * IV.INSTRUMENT_RATIO
-    zdata = load(fit_paths, robot=opts.robot, n_joints=data.n, torque=opts.torque, cutoff_hz=fz,
-                 trim_s=data.filter.trim_samples * data.dt)
+    from robust_drake.identification.data import load_companion  # same rows as ``data`` (same trim rule)
+
+    zdata = load_companion(fit_paths, data, cutoff_hz=fz, torque=opts.torque)
     if not have_validation:
         zdata = zdata.subset(~tail_mask(zdata))
     cz = ColumnCache(zdata, regressor)
