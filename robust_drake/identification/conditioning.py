@@ -62,10 +62,10 @@ JITTER_RESIDUAL_MAX = 0.25
 IRREGULAR_WARN = 0.05
 #: stiction: speed threshold [rad/s], minimum duration [s], torque change as a fraction of the range
 STICK_SPEED = 0.01
-STICK_MIN_S = 0.05
+STICK_MIN_S = 0.1
 STICK_TORQUE_FRAC = 0.05
 #: warn when a joint is stuck on more than this fraction of its samples
-STICK_WARN_FRAC = 0.05
+STICK_WARN_FRAC = 0.10
 #: band margin of the acceleration check (content above BAND_MARGIN x cut-off is negligible)
 BAND_MARGIN = 1.5
 #: logged velocity vs derivative of the positions: relative RMS disagreement that warns
@@ -206,17 +206,24 @@ def derivative_consistency(qd: np.ndarray, qdd: np.ndarray, cutoff_hz: float | N
     return msgs
 
 
-def velocity_agreement(qd_logged: np.ndarray, qd_from_q: np.ndarray, name: str = "") -> list[str]:
-    """Messages for joints whose logged velocity disagrees with the derivative of the positions
-    by more than ``VELOCITY_MISMATCH`` (relative RMS)."""
+def agreement(given: np.ndarray, reference: np.ndarray, given_name: str, reference_name: str,
+              name: str = "", tol: float = VELOCITY_MISMATCH) -> list[str]:
+    """Messages for joints whose ``given`` signal (a logged velocity, a given acceleration)
+    differs from ``reference`` (the derivative of the positions / velocities on the same grid and
+    in the same band) by more than ``tol`` relative RMS."""
     msgs = []
-    for j in range(qd_logged.shape[1]):
-        ref = float(np.sqrt(np.mean(qd_from_q[:, j] ** 2)))
-        err = float(np.sqrt(np.mean((qd_logged[:, j] - qd_from_q[:, j]) ** 2)))
-        if ref > 0 and err > VELOCITY_MISMATCH * ref:
-            msgs.append(f"{name}: logged velocity qd{j + 1} differs from the derivative of q{j + 1} by "
-                        f"{err / ref:.0%} RMS (sign, units, delay or a different sensor?)")
+    for j in range(given.shape[1]):
+        ref = float(np.sqrt(np.mean(reference[:, j] ** 2)))
+        err = float(np.sqrt(np.mean((given[:, j] - reference[:, j]) ** 2)))
+        if ref > 0 and err > tol * ref:
+            msgs.append(f"{name}: {given_name}{j + 1} differs from {reference_name}{j + 1} by "
+                        f"{err / ref:.0%} RMS (sign, units, delay, noise or a different sensor?)")
     return msgs
+
+
+def velocity_agreement(qd_logged: np.ndarray, qd_from_q: np.ndarray, name: str = "") -> list[str]:
+    """Logged velocity against the derivative of the positions (:func:`agreement`)."""
+    return agreement(qd_logged, qd_from_q, "logged velocity qd", "the derivative of q", name)
 
 
 def base(path: str) -> str:
@@ -225,4 +232,4 @@ def base(path: str) -> str:
 
 __all__ = ["GAP_FACTOR", "StampDiagnosis", "split_at_gaps", "classify_stamps", "uniform_grid",
            "resample_cubic", "condition_stretch", "stuck_mask", "derivative_consistency",
-           "velocity_agreement"]
+           "velocity_agreement", "agreement"]

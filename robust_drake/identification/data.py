@@ -511,6 +511,15 @@ def _condition_file(r: RawData, k: int, stats: dict, cutoff_hz, order, robot, tr
             continue
         if given:
             q, qd, qdd, tau = arr["q"], arr["qd"], arr["qdd"], arr["tau"]
+            # given derivatives are used as given, but checked against the derivatives of the
+            # positions / velocities in the default band (a given acceleration that is not the
+            # motion warns)
+            lp = lambda x: zero_phase_lowpass(x, T, min(DEFAULT_CUTOFF_HZ, 0.4 / T), order)  # noqa: E731
+            inner = slice(m + 1, len(grid) - m - 1) if m else slice(int(0.25 / T), len(grid) - int(0.25 / T))
+            msgs += C.agreement(lp(qd)[inner], differentiate(T, lp(q))[inner], "given velocity qd",
+                                "the derivative of q", name)
+            msgs += C.agreement(lp(qdd)[inner], differentiate(T, lp(qd))[inner], "given acceleration qdd",
+                                "the derivative of qd", name)
         else:
             q = zero_phase_lowpass(arr["q"], T, cutoff_hz, order)
             tau = zero_phase_lowpass(arr["tau"], T, cutoff_hz, order)
