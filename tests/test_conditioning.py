@@ -101,11 +101,15 @@ def test_gaps_are_found_and_small_steps_are_not():
 
 
 # ----------------------------------------------------------------------------- identification
-@pytest.fixture(scope="module", params=[ARM2, ARM7])
-def arm(request, tmp_path_factory):
+_ARMS: dict = {}
+
+
+def _arm_files(robot, tmp_path_factory):
+    """Clean fit / validation logs of ``robot`` and their damaged copies (built once per module)."""
     from robust_drake.identification.least_squares import load_regressor
 
-    robot = request.param
+    if robot in _ARMS:
+        return _ARMS[robot]
     d = tmp_path_factory.mktemp(robot)
     clean = _sim(robot, 1000.0, seed=0)
     files = {
@@ -119,7 +123,18 @@ def arm(request, tmp_path_factory):
         # on serial7 whatever the conditioning (measured: a decimated clean log does the same)
         "250hz": _write(_sim(robot, 250.0, seed=0, duration=4 * DURATION), d / "s250.csv"),
     }
-    return robot, files, load_regressor(robot)
+    _ARMS[robot] = (robot, files, load_regressor(robot))
+    return _ARMS[robot]
+
+
+@pytest.fixture(scope="module", params=[ARM2, ARM7])
+def arm(request, tmp_path_factory):
+    return _arm_files(request.param, tmp_path_factory)
+
+
+@pytest.fixture(scope="module")
+def arm2(tmp_path_factory):
+    return _arm_files(ARM2, tmp_path_factory)
 
 
 def _identify(paths, robot, reg, val_path):
@@ -201,14 +216,12 @@ def test_instrument_load_keeps_the_rows_for_files_of_many_lengths(tmp_path):
     assert old_rule_differs
 
 
-def test_repair_runs_on_jittered_gappy_files_of_unequal_length(arm, tmp_path):
+def test_repair_runs_on_jittered_gappy_files_of_unequal_length(arm2, tmp_path):
     """The whole repair with instruments on (the crash path) on damaged files of unequal lengths:
     no crash, the conditioning warnings reach report.json."""
     from robust_drake.identification.repair import RepairOptions, run_repair
 
-    robot, files, reg = arm
-    if robot != ARM2:
-        pytest.skip("one arm is enough for the end-to-end path")
+    robot, files, reg = arm2
     a = pd.read_csv(files["gaps"]).iloc[:5001]
     b = jittered(pd.read_csv(files["clean"]).iloc[2000:6333].reset_index(drop=True), seed=9)
     fit = [_write(a, tmp_path / "a.csv"), _write(b, tmp_path / "b.csv")]
