@@ -10,28 +10,36 @@ DFKI adapter (the DFKI RIC double-pendulum records, ``../shared/data/dfki_double
     (the command). ``vel_meas*`` is a plain finite difference there, so it is *not* used.
 
 Velocity / acceleration convention (one convention, applied everywhere)
+    0. conditioning (:mod:`robust_drake.identification.conditioning`): every file is split at
+       logging gaps (a step > ``GAP_FACTOR`` x the median) into segments, and every segment is
+       put on a uniform grid: stamps that scatter around a fixed rate are replaced by the fitted
+       grid (samples kept), truly irregular sampling is resampled by a cubic spline (a
+       DataWarning says which); segments too short for the filters are dropped (warning);
     1. positions and torques are low-pass filtered with the *same* zero-phase Butterworth
        filter (order ``FilterSettings.order`` run forwards and backwards with
        ``scipy.signal.filtfilt``, so no phase lag and an effective order 2*order; cut-off
        ``cutoff_hz``, default 8 Hz);
-    2. ``qd`` = central difference (``numpy.gradient`` on the time stamps) of the filtered
-       positions; ``qdd`` = central difference of ``qd``;
+    2. ``qd`` = central difference (``numpy.gradient`` with the segment's uniform period, never
+       over logged stamps) of the filtered positions (or, with ``velocities="logged"``, the
+       low-passed logged velocity); ``qdd`` = central difference of ``qd``;
     3. filtering both sides of tau = Y(q, qd, qdd) theta identically keeps the linear model
        consistent (the filter commutes with the linear map up to the nonlinearity of Y, which
        is small below the cut-off);
-    4. the first and last ``2 / cutoff_hz`` seconds of every file are cut after filtering
+    4. the first and last ``2 / cutoff_hz`` seconds of every segment are cut after filtering
        (start-up transients of the filter and of torque steps at t = 0; ``trim_s`` overrides);
-       the number of cut samples is recorded in ``FilterSettings.trim_samples``.
+       the rule is recorded in ``FilterSettings.trim_s`` and a second load of the same files at
+       another cut-off (instruments) reuses it (:func:`load_companion`: same rows, checked);
+    5. stiction: rows where a joint sticks are marked in ``IdentData.stuck`` (warning above 10 %).
     Velocities given in a canonical CSV (``qd*``, ``qdd*``) are used as given when
     ``use_given_derivatives=True``; otherwise they are recomputed by the convention above.
 
 Validation never silently drops anything: missing/duplicate columns (read from the raw header
-line: pandas would rename a second copy and ignore it), non-increasing or irregular time (the
-jitter is reported), time that looks like milliseconds (median step > ``MAX_SAMPLE_PERIOD_S``),
+line: pandas would rename a second copy and ignore it), non-increasing time, time that looks like milliseconds (median step > ``MAX_SAMPLE_PERIOD_S``),
 NaN/inf or absurd values (|x| > ``MAX_ABS_VALUE``; column and row named), wrong joint count,
 constant or too-short signals and positions that look like degrees all raise
-:class:`DataError` with the file name and what to do. Warnings (``IdentData.warnings``): jitter,
-unpowered joints, logged velocities that disagree with the derivative of the positions
+:class:`DataError` with the file name and what to do. Warnings (``IdentData.warnings``, each a one-line
+:class:`DataWarning`): gaps, stamp jitter, resampling, dropped segments, stiction, derivatives
+inconsistent with the motion, unpowered joints, logged velocities that disagree with the derivative of the positions
 (units); ``IdentData.position_counts`` records each joint's range in encoder counts
 (:func:`frozen_joints`: at most ``FROZEN_MAX_COUNTS`` counts = unidentifiable joint).
 Checks that need the robot model (units against the URDF, sample budget, files used twice,
@@ -112,8 +120,9 @@ class RawData:
 class IdentData:
     """Samples ready for identification (SI units); arrays are (N, n).
 
-    ``segment`` (N,) labels the file each sample came from (filtering and differentiation
-    never cross a file boundary; replays reset at segment starts). ``sources`` lists the files.
+    ``segment`` (N,) labels the gap-free stretch of a file each sample came from (filtering,
+    differentiation and trimming never cross a segment boundary; replays reset at segment
+    starts; ``conditioning`` holds one dict per segment with its source). ``sources`` lists the files.
     """
 
     t: np.ndarray
@@ -166,7 +175,7 @@ class IdentData:
         return float((t[-1] - t[0]) / (len(t) - 1)) if len(t) > 1 else float(self.dt)
 
     def segments(self) -> list["IdentData"]:
-        """One IdentData per contiguous source file."""
+        """One IdentData per contiguous gap-free segment."""
         return [self.subset(self.segment == s) for s in np.unique(self.segment)]
 
     def with_tau(self, tau: np.ndarray) -> "IdentData":
