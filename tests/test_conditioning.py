@@ -180,7 +180,7 @@ def test_artefacts_warn_and_give_the_clean_answer(arm, case, expect):
     # friction columns follow the base block; compare the rigid-body part's prediction
     assert np.all(dtau <= TORQUE_REL * tau_scale), (dtau / tau_scale)
     if case == "gaps":
-        assert d.summary()["segments"] == 4
+        assert d.summary()["segments"] == 4 and d.sources == [files["gaps"]]
         assert np.all(np.diff(d.t[d.segment == d.segment[0]]) > 0)
 
 

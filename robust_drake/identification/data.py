@@ -525,10 +525,11 @@ def _condition_file(r: RawData, k: int, stats: dict, cutoff_hz, order, robot, tr
             # motion warns)
             lp = lambda x: zero_phase_lowpass(x, T, min(DEFAULT_CUTOFF_HZ, 0.4 / T), order)  # noqa: E731
             inner = slice(m + 1, len(grid) - m - 1) if m else slice(int(0.25 / T), len(grid) - int(0.25 / T))
-            msgs += C.agreement(lp(qd)[inner], differentiate(T, lp(q))[inner], "given velocity qd",
-                                "the derivative of q", name)
-            msgs += C.agreement(lp(qdd)[inner], differentiate(T, lp(qd))[inner], "given acceleration qdd",
-                                "the derivative of qd", name)
+            if len(range(*inner.indices(len(grid)))) >= MIN_SAMPLES:
+                msgs += C.agreement(lp(qd)[inner], differentiate(T, lp(q))[inner], "given velocity qd",
+                                    "the derivative of q", name)
+                msgs += C.agreement(lp(qdd)[inner], differentiate(T, lp(qd))[inner],
+                                    "given acceleration qdd", "the derivative of qd", name)
         else:
             q = zero_phase_lowpass(arr["q"], T, cutoff_hz, order)
             tau = zero_phase_lowpass(arr["tau"], T, cutoff_hz, order)
@@ -627,6 +628,7 @@ def prepare(
         parts += segs
     data = IdentData.concatenate(parts) if len(parts) > 1 else parts[0]
     data.dt = float(np.mean([p.dt for p in parts]))
+    data.sources = list(dict.fromkeys(data.sources))  # a file split at gaps is still one source
     data.warnings = list(dict.fromkeys(msgs))
     for w in data.warnings:
         warnings.warn(w, DataWarning, stacklevel=2)
