@@ -45,7 +45,6 @@ Derivative check (:func:`derivative_consistency`)
 from __future__ import annotations
 
 import math
-import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -224,10 +223,6 @@ def agreement(given: np.ndarray, reference: np.ndarray, given_name: str, referen
 def velocity_agreement(qd_logged: np.ndarray, qd_from_q: np.ndarray, name: str = "") -> list[str]:
     """Logged velocity against the derivative of the positions (:func:`agreement`)."""
     return agreement(qd_logged, qd_from_q, "logged velocity qd", "the derivative of q", name)
-
-
-def base(path: str) -> str:
-    return os.path.basename(str(path))
 
 
 __all__ = ["GAP_FACTOR", "StampDiagnosis", "split_at_gaps", "classify_stamps", "uniform_grid",
