@@ -10,28 +10,36 @@ DFKI adapter (the DFKI RIC double-pendulum records, ``../shared/data/dfki_double
     (the command). ``vel_meas*`` is a plain finite difference there, so it is *not* used.
 
 Velocity / acceleration convention (one convention, applied everywhere)
+    0. conditioning (:mod:`robust_drake.identification.conditioning`): every file is split at
+       logging gaps (a step > ``GAP_FACTOR`` x the median) into segments, and every segment is
+       put on a uniform grid: stamps that scatter around a fixed rate are replaced by the fitted
+       grid (samples kept), truly irregular sampling is resampled by a cubic spline (a
+       DataWarning says which); segments too short for the filters are dropped (warning);
     1. positions and torques are low-pass filtered with the *same* zero-phase Butterworth
        filter (order ``FilterSettings.order`` run forwards and backwards with
        ``scipy.signal.filtfilt``, so no phase lag and an effective order 2*order; cut-off
        ``cutoff_hz``, default 8 Hz);
-    2. ``qd`` = central difference (``numpy.gradient`` on the time stamps) of the filtered
-       positions; ``qdd`` = central difference of ``qd``;
+    2. ``qd`` = central difference (``numpy.gradient`` with the segment's uniform period, never
+       over logged stamps) of the filtered positions (or, with ``velocities="logged"``, the
+       low-passed logged velocity); ``qdd`` = central difference of ``qd``;
     3. filtering both sides of tau = Y(q, qd, qdd) theta identically keeps the linear model
        consistent (the filter commutes with the linear map up to the nonlinearity of Y, which
        is small below the cut-off);
-    4. the first and last ``2 / cutoff_hz`` seconds of every file are cut after filtering
+    4. the first and last ``2 / cutoff_hz`` seconds of every segment are cut after filtering
        (start-up transients of the filter and of torque steps at t = 0; ``trim_s`` overrides);
-       the number of cut samples is recorded in ``FilterSettings.trim_samples``.
+       the rule is recorded in ``FilterSettings.trim_s`` and a second load of the same files at
+       another cut-off (instruments) reuses it (:func:`load_companion`: same rows, checked);
+    5. stiction: rows where a joint sticks are marked in ``IdentData.stuck`` (warning above 10 %).
     Velocities given in a canonical CSV (``qd*``, ``qdd*``) are used as given when
     ``use_given_derivatives=True``; otherwise they are recomputed by the convention above.
 
 Validation never silently drops anything: missing/duplicate columns (read from the raw header
-line: pandas would rename a second copy and ignore it), non-increasing or irregular time (the
-jitter is reported), time that looks like milliseconds (median step > ``MAX_SAMPLE_PERIOD_S``),
+line: pandas would rename a second copy and ignore it), non-increasing time, time that looks like milliseconds (median step > ``MAX_SAMPLE_PERIOD_S``),
 NaN/inf or absurd values (|x| > ``MAX_ABS_VALUE``; column and row named), wrong joint count,
 constant or too-short signals and positions that look like degrees all raise
-:class:`DataError` with the file name and what to do. Warnings (``IdentData.warnings``): jitter,
-unpowered joints, logged velocities that disagree with the derivative of the positions
+:class:`DataError` with the file name and what to do. Warnings (``IdentData.warnings``, each a one-line
+:class:`DataWarning`): gaps, stamp jitter, resampling, dropped segments, stiction, derivatives
+inconsistent with the motion, unpowered joints, logged velocities that disagree with the derivative of the positions
 (units); ``IdentData.position_counts`` records each joint's range in encoder counts
 (:func:`frozen_joints`: at most ``FROZEN_MAX_COUNTS`` counts = unidentifiable joint).
 Checks that need the robot model (units against the URDF, sample budget, files used twice,
@@ -52,8 +60,6 @@ from robust_drake.errors import DataError
 DEFAULT_CUTOFF_HZ = 8.0
 DEFAULT_FILTER_ORDER = 4
 MIN_SAMPLES = 50
-#: relative sampling jitter (std(dt)/mean(dt)) above which we refuse to filter as uniform data
-MAX_RELATIVE_JITTER = 0.2
 #: peak |q| above which positions "look like degrees" (4 pi rad = two full turns)
 DEGREE_THRESHOLD_RAD = 4.0 * np.pi
 #: |value| above which a position/velocity/acceleration/torque entry is refused as absurd (SI)
@@ -80,6 +86,11 @@ class FilterSettings:
     #: samples cut at *each* end of every file after filtering (filter start-up transients;
     #: default = 2 / cutoff seconds); reported, never silent
     trim_samples: int = 0
+    #: the trim rule in seconds (one value for every segment and for every load of the same
+    #: files, e.g. the instrument load: :func:`load_companion`); samples = round(trim_s / T_segment)
+    trim_s: float = 0.0
+    #: where the derivatives come from: "positions" (differentiated twice) or "logged velocities"
+    velocities: str = "positions"
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -109,8 +120,9 @@ class RawData:
 class IdentData:
     """Samples ready for identification (SI units); arrays are (N, n).
 
-    ``segment`` (N,) labels the file each sample came from (filtering and differentiation
-    never cross a file boundary; replays reset at segment starts). ``sources`` lists the files.
+    ``segment`` (N,) labels the gap-free stretch of a file each sample came from (filtering,
+    differentiation and trimming never cross a segment boundary; replays reset at segment
+    starts; ``conditioning`` holds one dict per segment with its source). ``sources`` lists the files.
     """
 
     t: np.ndarray
@@ -127,6 +139,11 @@ class IdentData:
     warnings: list[str] = field(default_factory=list)
     #: per joint, the position range in encoder counts (largest over the files; data.position_counts)
     position_counts: np.ndarray | None = None
+    #: (N, n) True where a joint sticks (conditioning.stuck_mask): friction there is not a
+    #: function of velocity; velocity-friction fits should leave those rows out
+    stuck: np.ndarray | None = None
+    #: one dict per segment: source file, time-stamp diagnosis, period, samples, trim
+    conditioning: list = field(default_factory=list)
 
     def __post_init__(self):
         if self.segment is None:
@@ -149,10 +166,16 @@ class IdentData:
             self,
             t=self.t[index], q=self.q[index], qd=self.qd[index], qdd=self.qdd[index],
             tau=self.tau[index], segment=self.segment[index], warnings=list(self.warnings),
+            stuck=None if self.stuck is None else self.stuck[index],
         )
 
+    def segment_period(self, s) -> float:
+        """Sampling period of segment ``s`` [s] (every segment is on a uniform grid)."""
+        t = self.t[self.segment == s]
+        return float((t[-1] - t[0]) / (len(t) - 1)) if len(t) > 1 else float(self.dt)
+
     def segments(self) -> list["IdentData"]:
-        """One IdentData per contiguous source file."""
+        """One IdentData per contiguous gap-free segment."""
         return [self.subset(self.segment == s) for s in np.unique(self.segment)]
 
     def with_tau(self, tau: np.ndarray) -> "IdentData":
@@ -181,6 +204,8 @@ class IdentData:
             warnings=[w for p in parts for w in p.warnings],
             position_counts=None if any(p.position_counts is None for p in parts)
             else np.max([p.position_counts for p in parts], axis=0),
+            stuck=None if any(p.stuck is None for p in parts) else np.concatenate([p.stuck for p in parts]),
+            conditioning=[c for p in parts for c in p.conditioning],
         )
 
     def summary(self) -> dict:
@@ -191,6 +216,9 @@ class IdentData:
             "q_range": [[float(a), float(b)] for a, b in zip(self.q.min(0), self.q.max(0))],
             "qd_max": [float(x) for x in np.abs(self.qd).max(0)],
             "tau_max": [float(x) for x in np.abs(self.tau).max(0)],
+            "segments": int(len(np.unique(self.segment))),
+            "stuck_fraction": None if self.stuck is None else [float(x) for x in self.stuck.mean(0)],
+            "conditioning": list(self.conditioning),
         }
 
 
@@ -383,14 +411,8 @@ def validate_raw(raw: RawData, n_joints: int | None = None, allow_degrees: bool 
             f"{MAX_SAMPLE_PERIOD_S:g} s"
         )
     jitter = float(np.std(dt) / np.mean(dt))
-    if jitter > MAX_RELATIVE_JITTER or dt.max() > 5 * dt_med:
-        raise DataError(
-            f"{src}: irregular sampling: median dt {dt_med:.4g} s, jitter std/mean {jitter:.3f}, "
-            f"largest gap {dt.max():.4g} s at t={raw.t[int(np.argmax(dt))]:.4g}; resample to a "
-            "uniform grid or split the file at the gap"
-        )
-    if jitter > 0.05:
-        warns.append(f"{os.path.basename(src)}: sampling jitter std(dt)/mean(dt) = {jitter:.3f}")
+    # jitter and gaps are handled, not refused: conditioning.py splits at gaps and puts every
+    # stretch on a uniform grid (prepare); the messages come from there
     span = np.ptp(raw.q, axis=0)
     for i in range(raw.n):
         if span[i] == 0.0:
@@ -459,9 +481,97 @@ def zero_phase_lowpass(x: np.ndarray, dt: float, cutoff_hz: float | None, order:
     return filtfilt(b, a, x, axis=0, padlen=padlen)
 
 
-def differentiate(t: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """Central differences on the actual time stamps (second order, one-sided at the ends)."""
+def differentiate(t, x: np.ndarray) -> np.ndarray:
+    """Central differences (second order, one-sided at the ends) along axis 0.
+
+    ``t`` is the uniform sampling period (a float, the only use in :func:`prepare`: derivatives
+    are taken on a uniform grid only) or, for callers with their own grid, the time stamps."""
     return np.gradient(x, t, axis=0, edge_order=2)
+
+
+def _condition_file(r: RawData, k: int, stats: dict, cutoff_hz, order, robot, trim_s, given: bool,
+                    velocities: str) -> tuple[list["IdentData"], list[str]]:
+    """One file -> one IdentData per usable gap-free segment (conditioning.py), plus messages."""
+    from robust_drake.identification import conditioning as C
+
+    name = os.path.basename(r.source)
+    msgs: list[str] = []
+    pieces = C.split_at_gaps(r.t)
+    if len(pieces) > 1:
+        dt_all = np.diff(r.t)
+        gaps = [float(dt_all[p.start - 1]) for p in pieces[1:]]
+        msgs.append(
+            f"{name}: {len(gaps)} logging gap(s) (longest {max(gaps) * 1e3:.3g} ms; a gap is a step > "
+            f"{C.GAP_FACTOR:g} x the median {np.median(dt_all) * 1e3:.3g} ms): split into {len(pieces)} segments")
+    out, dropped = [], []
+    for piece in pieces:
+        t = r.t[piece]
+        if len(t) < 4:
+            dropped.append((len(t), float(r.t[piece.start])))
+            continue
+        arrays = {"q": r.q[piece], "tau": r.tau[piece],
+                  "qd": None if r.qd is None else r.qd[piece], "qdd": None if r.qdd is None else r.qdd[piece]}
+        grid, arr, diag, m_msgs = C.condition_stretch(t, arrays, name)
+        msgs += m_msgs
+        T = diag.period
+        m = int(round(trim_s / T))
+        if len(grid) - 2 * m < MIN_SAMPLES:
+            dropped.append((len(grid), float(grid[0])))
+            continue
+        if given:
+            q, qd, qdd, tau = arr["q"], arr["qd"], arr["qdd"], arr["tau"]
+            # given derivatives are used as given, but checked against the derivatives of the
+            # positions / velocities in the default band (a given acceleration that is not the
+            # motion warns)
+            lp = lambda x: zero_phase_lowpass(x, T, min(DEFAULT_CUTOFF_HZ, 0.4 / T), order)  # noqa: E731
+            inner = slice(m + 1, len(grid) - m - 1) if m else slice(int(0.25 / T), len(grid) - int(0.25 / T))
+            if len(range(*inner.indices(len(grid)))) >= MIN_SAMPLES:
+                msgs += C.agreement(lp(qd)[inner], differentiate(T, lp(q))[inner], "given velocity qd",
+                                    "the derivative of q", name)
+                msgs += C.agreement(lp(qdd)[inner], differentiate(T, lp(qd))[inner],
+                                    "given acceleration qdd", "the derivative of qd", name)
+        else:
+            q = zero_phase_lowpass(arr["q"], T, cutoff_hz, order)
+            tau = zero_phase_lowpass(arr["tau"], T, cutoff_hz, order)
+            qd_q = differentiate(T, q)
+            if velocities == "logged":
+                qd = zero_phase_lowpass(arr["qd"], T, cutoff_hz, order)
+                msgs += C.velocity_agreement(qd[m:len(grid) - m], qd_q[m:len(grid) - m], name)
+            else:
+                qd = qd_q
+            qdd = differentiate(T, qd)
+        keep = slice(m, len(grid) - m)
+        msgs += C.derivative_consistency(qd[keep], qdd[keep], None if given else cutoff_hz, T, name)
+        stuck = C.stuck_mask(qd[keep], tau[keep], T)
+        nk = len(grid) - 2 * m
+        out.append(IdentData(
+            t=grid[keep].copy(), q=q[keep], qd=qd[keep], qdd=qdd[keep], tau=tau[keep], dt=T, robot=robot,
+            sources=[r.source], segment=np.full(nk, k), jitter=stats["jitter"], warnings=[],
+            position_counts=stats["counts"], stuck=stuck,
+            conditioning=[{"source": name, "start_s": float(grid[0]), "samples": int(nk), "trim_samples": m,
+                           "stamps": diag.to_dict()}],
+        ))
+        out[-1].filter.trim_samples = m
+    if dropped:
+        msgs.append(
+            f"{name}: {len(dropped)} segment(s) too short for the filters dropped (fewer than {MIN_SAMPLES} "
+            f"samples after trimming {trim_s:.3g} s at each end; lengths {[d[0] for d in dropped][:6]})")
+    return out, msgs
+
+
+def _stick_messages(segs: list["IdentData"], name: str) -> list[str]:
+    """One message per joint stuck on more than STICK_WARN_FRAC of one file's samples."""
+    from robust_drake.identification import conditioning as C
+
+    stuck = np.concatenate([sg.stuck for sg in segs])
+    msgs = []
+    for j, f in enumerate(stuck.mean(0)):
+        if f > C.STICK_WARN_FRAC:
+            msgs.append(
+                f"{name}: joint {j} (q{j + 1}) sticks on {f:.0%} of the samples (speed < {C.STICK_SPEED:g} "
+                f"rad/s for >= {C.STICK_MIN_S:g} s while its torque changes): friction there is not a "
+                "function of velocity; those rows are marked (IdentData.stuck)")
+    return msgs
 
 
 def prepare(
@@ -473,39 +583,53 @@ def prepare(
     use_given_derivatives: bool = False,
     allow_degrees: bool = False,
     trim_s: float | None = None,
+    velocities: str = "positions",
 ) -> IdentData:
-    """Validate, filter and differentiate one or more files into one :class:`IdentData`."""
+    """Validate, condition (conditioning.py: gaps -> segments, uniform grid), filter and
+    differentiate one or more files into one :class:`IdentData`.
+
+    ``trim_s`` [s] is cut at both ends of every segment (default ``2 / cutoff_hz``); it is
+    converted to samples per segment as ``round(trim_s / T_segment)`` from the raw stamps only,
+    so two loads of the same files with the same ``trim_s`` keep the same rows whatever their
+    cut-offs (:func:`load_companion`). ``velocities="logged"`` low-passes the log's ``qd*``
+    columns instead of differentiating the positions (only for real velocity sensors).
+    """
     raws = raw if isinstance(raw, (list, tuple)) else [raw]
     if not raws:
         raise DataError("no data files given")
-    parts = []
+    if velocities not in ("positions", "logged"):
+        raise DataError(f"velocities must be 'positions' or 'logged', got {velocities!r}")
+    parts, msgs = [], []
     for k, r in enumerate(raws):
         stats = validate_raw(r, n_joints=n_joints if n_joints is not None else raws[0].n,
                              allow_degrees=allow_degrees)
-        dt = stats["dt"]
+        msgs += stats["warnings"]
         given = use_given_derivatives and r.qd is not None and r.qdd is not None
-        if given:
-            q, qd, qdd, tau = r.q.copy(), r.qd.copy(), r.qdd.copy(), r.tau.copy()
-            fs = FilterSettings(cutoff_hz=None, order=0, derivatives="given")
-        else:
-            q = zero_phase_lowpass(r.q, dt, cutoff_hz, order)
-            tau = zero_phase_lowpass(r.tau, dt, cutoff_hz, order)
-            qd = differentiate(r.t, q)
-            qdd = differentiate(r.t, qd)
-            fs = FilterSettings(cutoff_hz=cutoff_hz, order=order)
+        if velocities == "logged" and not given and r.qd is None:
+            raise DataError(
+                f"{r.source}: no logged velocity columns (qd1..qd{r.n}) for velocities='logged'"
+                + ("; the DFKI vel_meas columns are finite differences of pos_meas, not a sensor"
+                   if r.fmt == "dfki" else ""))
         trim = trim_s if trim_s is not None else (2.0 / cutoff_hz if (cutoff_hz and not given) else 0.0)
-        m = int(round(trim / dt))
-        if len(r.t) - 2 * m < MIN_SAMPLES:
-            raise DataError(f"{r.source}: too short ({len(r.t)} samples) to trim {m} filter start-up "
-                            "samples at each end; record longer or pass a smaller trim")
-        fs.trim_samples = m
-        keep = slice(m, len(r.t) - m)
-        parts.append(IdentData(
-            t=r.t[keep].copy(), q=q[keep], qd=qd[keep], qdd=qdd[keep], tau=tau[keep], dt=dt, robot=robot,
-            sources=[r.source], filter=fs, segment=np.full(len(r.t) - 2 * m, k), jitter=stats["jitter"],
-            warnings=stats["warnings"], position_counts=stats["counts"],
-        ))
+        segs, m = _condition_file(r, k, stats, cutoff_hz, order, robot, trim, given, velocities)
+        msgs += m
+        if segs:
+            msgs += _stick_messages(segs, os.path.basename(r.source))
+        if not segs:
+            raise DataError(f"{r.source}: too short ({len(r.t)} samples) to trim {trim:.3g} s of filter "
+                            "start-up at each end of every segment; record longer or pass a smaller trim")
+        fs = (FilterSettings(cutoff_hz=None, order=0, derivatives="given") if given
+              else FilterSettings(cutoff_hz=cutoff_hz, order=order,
+                                  velocities="logged velocities" if velocities == "logged" else "positions"))
+        fs.trim_samples = segs[0].filter.trim_samples
+        fs.trim_s = float(trim)
+        for sg in segs:
+            sg.filter = fs
+        parts += segs
     data = IdentData.concatenate(parts) if len(parts) > 1 else parts[0]
+    data.dt = float(np.mean([p.dt for p in parts]))
+    data.sources = list(dict.fromkeys(data.sources))  # a file split at gaps is still one source
+    data.warnings = list(dict.fromkeys(msgs))
     for w in data.warnings:
         warnings.warn(w, DataWarning, stacklevel=2)
     return data
@@ -515,13 +639,33 @@ def load(
     paths, robot: str | None = None, n_joints: int | None = None, torque: str = "tau_meas",
     cutoff_hz: float | None = DEFAULT_CUTOFF_HZ, order: int = DEFAULT_FILTER_ORDER,
     use_given_derivatives: bool = False, allow_degrees: bool = False, trim_s: float | None = None,
+    velocities: str = "positions",
 ) -> IdentData:
-    """Read + validate + filter one path or a list of paths (canonical or DFKI)."""
+    """Read + validate + condition + filter one path or a list of paths (canonical or DFKI)."""
     if isinstance(paths, (str, os.PathLike)):
         paths = [paths]
     raws = [read_csv(p, torque=torque) for p in paths]
     return prepare(raws, cutoff_hz=cutoff_hz, order=order, robot=robot, n_joints=n_joints,
-                   use_given_derivatives=use_given_derivatives, allow_degrees=allow_degrees, trim_s=trim_s)
+                   use_given_derivatives=use_given_derivatives, allow_degrees=allow_degrees, trim_s=trim_s,
+                   velocities=velocities)
+
+
+def load_companion(paths, like: IdentData, cutoff_hz: float | None, torque: str = "tau_meas",
+                   order: int | None = None) -> IdentData:
+    """The same files as ``like`` filtered at another cut-off (e.g. the instruments), on exactly
+    ``like``'s rows: the same trim rule (``like.filter.trim_s``), hence the same segments and
+    samples. Raises :class:`DataError` if the rows differ (they cannot, by construction)."""
+    other = load(paths, robot=like.robot, n_joints=like.n, torque=torque, cutoff_hz=cutoff_hz,
+                 order=like.filter.order if order is None else order, trim_s=like.filter.trim_s)
+    same_rows(like, other)
+    return other
+
+
+def same_rows(a: IdentData, b: IdentData) -> None:
+    """Raise :class:`DataError` unless ``a`` and ``b`` hold the same samples (segments, times)."""
+    if a.N != b.N or not np.array_equal(a.segment, b.segment) or not np.allclose(a.t, b.t, rtol=0, atol=1e-9):
+        raise DataError(f"two loads of the same files disagree: {a.N} vs {b.N} rows "
+                        f"({a.sources}); the trim rule must be shared (data.load_companion)")
 
 
 def from_arrays(t, q, tau, qd=None, qdd=None, robot=None, cutoff_hz=DEFAULT_CUTOFF_HZ,

@@ -115,7 +115,7 @@ def cutoff_sweep(paths, robot, regressor, cutoffs, torque: str = "tau_meas", wei
 
     Returns ``{"cutoff_hz": [...], "names": base names, "least_squares": [[...] per cut-off],
     "instrumental_variables": [[...]], "nominal": URDF base parameters}``."""
-    from robust_drake.identification.data import load
+    from robust_drake.identification.data import load, load_companion
 
     p0 = len(regressor.base_names)
     out = {"cutoff_hz": [float(c) for c in cutoffs], "names": list(regressor.base_names),
@@ -123,8 +123,7 @@ def cutoff_sweep(paths, robot, regressor, cutoffs, torque: str = "tau_meas", wei
            "nominal": [float(x) for x in regressor.base_parameters()]}
     for fc in cutoffs:
         d = load(paths, robot=robot, n_joints=n_joints, torque=torque, cutoff_hz=fc)
-        z = load(paths, robot=robot, n_joints=d.n, torque=torque, cutoff_hz=fc * ratio,
-                 trim_s=d.filter.trim_samples * d.dt)
+        z = load_companion(paths, d, cutoff_hz=fc * ratio, torque=torque)
         c, cz = ColumnCache(d, regressor), ColumnCache(z, regressor)
         w = np.ones(d.n) if weights is None else np.asarray(weights, float)
         out["least_squares"].append([float(x) for x in fit_model(c, [], w)[0].theta[:p0]])

@@ -58,7 +58,7 @@ def parallel_filter(data: IdentData, Y: np.ndarray) -> np.ndarray:
     for s in np.unique(data.segment):
         m = data.segment == s
         block = Y[m]
-        out[m] = zero_phase_lowpass(block.reshape(block.shape[0], -1), data.dt, cutoff,
+        out[m] = zero_phase_lowpass(block.reshape(block.shape[0], -1), data.segment_period(s), cutoff,
                                     data.filter.order).reshape(block.shape)
     return out
 

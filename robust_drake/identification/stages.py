@@ -33,7 +33,7 @@ import numpy as np
 
 from robust_drake.errors import RobustDrakeError
 from robust_drake.identification import residual as R
-from robust_drake.identification.data import IdentData, frozen_joints, load
+from robust_drake.identification.data import IdentData, frozen_joints, load, load_companion
 from robust_drake.identification.fitting import ColumnCache, effect_label, fit_model, predict_tau
 from robust_drake.identification.least_squares import LSResult, load_regressor, solve_wls
 
@@ -187,8 +187,7 @@ def choose_estimator(inp: Inputs, base: Baseline, opts, log) -> Estimator:
     if not (opts.instruments and fit.filter.cutoff_hz and fit.filter.derivatives != "given"):
         return Estimator()
     fz = fit.filter.cutoff_hz * IV.INSTRUMENT_RATIO
-    zdata = load(inp.fit_paths, robot=opts.robot, n_joints=inp.data.n, torque=opts.torque, cutoff_hz=fz,
-                 trim_s=inp.data.filter.trim_samples * inp.data.dt)
+    zdata = load_companion(inp.fit_paths, inp.data, cutoff_hz=fz, torque=opts.torque)  # same rows as data
     if not inp.validate_paths:
         zdata = zdata.subset(~tail_mask(zdata))
     cz = ColumnCache(zdata, inp.regressor)
