@@ -190,7 +190,7 @@ def test_constant_rho_dominates_the_error_dependent_rho_and_spends_more(study):
     assert rc == pytest.approx(b[0] + b[1] * 0.2 + b[2] * 0.04, rel=1e-9)   # eq. 13 is eq. 10 at ||e|| = E_M
     c = run_constant_rho((25.0, 5.0), E_M=0.2)
     assert c["assumption_held"] and not c["diverged"]
-    assert c["rho_peak"] == pytest.approx(rc) and c["rho_rms"] == pytest.approx(rc)
+    assert c["rho_peak"] == pytest.approx(rc) and c["rho_rms"] == pytest.approx(rc, rel=1e-3)  # rho = 0 before tick 1
     assert rc > study["A"]["rho_peak"]
     assert c["w_energy_total"] > 1.01 * study["A"]["w_energy_total"]
 
