@@ -181,7 +181,8 @@ def test_negative_option_values_are_glued_only_for_options_that_take_a_value():
 def test_constant_rho_dominates_the_error_dependent_rho_and_spends_more(study):
     """Section II-C: the constant gain of [3] is rho_A evaluated at the assumed ||e|| <= E_M, so while
     the error stays below E_M it is >= Case A's rho(||e||) at every instant and w costs more energy
-    (measured at (25, 5), E_M = 0.2: +~5 % energy)."""
+    (measured at E_M = 0.2: +1.4 % energy at (25, 5), +5.7 % at (100, 10): inside the boundary layer w
+    is a feedback that cancels eta whatever rho is, so a larger rho costs little energy)."""
     from robust_drake.experiments.bascetta import constant_rho, run_constant_rho
 
     d = case_study_design(K_P=25.0, K_D=5.0)
@@ -192,7 +193,7 @@ def test_constant_rho_dominates_the_error_dependent_rho_and_spends_more(study):
     assert c["assumption_held"] and not c["diverged"]
     assert c["rho_peak"] == pytest.approx(rc) and c["rho_rms"] == pytest.approx(rc, rel=1e-3)  # rho = 0 before tick 1
     assert rc > study["A"]["rho_peak"]
-    assert c["w_energy_total"] > 1.01 * study["A"]["w_energy_total"]
+    assert c["w_energy_total"] > 1.005 * study["A"]["w_energy_total"]
 
 
 def test_w_energy_reduction_grows_with_the_gains_and_without_beta0():

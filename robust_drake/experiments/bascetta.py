@@ -294,7 +294,7 @@ def plot_sensitivity(rows: list[dict], path) -> str:
         xs = [r["value"][0] if name == "gains" else r["value"] for r in rs]
         ax.plot(xs, [100 * r["reduction"] for r in rs], "o-")
         ax.axhline(100 * PAPER_REDUCTION, color="r", lw=0.8, ls="--", label="paper 11 %")
-        if name in ("boundary", "gains"):
+        if name == "boundary":
             ax.set_xscale("log")
         ax.set(xlabel={"gains": "K_P (K_D = sqrt K_P)", "boundary": "boundary layer [rad]",
                        "length": "line length / default", "T": "travel time T [s]",
