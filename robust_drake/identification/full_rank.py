@@ -127,14 +127,14 @@ def check_full_rank(model, draws: int = 2000, seed: int = 0, max_channels: int =
     from robust_drake.identification.lfr import random_deltas
 
     m = model.n_params
-    F = model.lfr()
-    D0 = F.M0[:, :m]
-    Lm, Rm = F.L, F.R[:, :m]
-    keep = np.linalg.norm(Rm, axis=1) > 0          # tau channels do not enter D(delta)
-    Lm, Rm, sc = Lm[:, keep], Rm[keep], F.scalars[keep]
+    D0 = np.asarray(model.D0, float).reshape(-1, m)
     if D0.shape[0] < m:
         raise RobustDrakeError(f"{D0.shape[0]} regression rows cannot have full column rank {m}; "
                                "use more samples")
+    # channels of the D part: rank of each scalar's D coefficient (tau scalars have none)
+    ranks = [np.linalg.matrix_rank(model.coeffs[k, j, :, :m]) if np.any(model.coeffs[k, j, :, :m]) else 0
+             for k in range(model.n_samples) for j in range(model.coeffs.shape[1])]
+    n_channels = int(sum(ranks))
     sv0 = np.linalg.svd(D0, compute_uv=False)
     rng = np.random.default_rng(seed)
     deltas = random_deltas(model.n_scalars, draws, rng)
@@ -146,14 +146,19 @@ def check_full_rank(model, draws: int = 2000, seed: int = 0, max_channels: int =
         smin = min(smin, float(sv[-1]))
         if sv[-1] <= certificate_tol(max(Dd.shape)) * sv[0]:
             refuted = True
-    common = dict(sigma_min_nominal=float(sv0[-1]), sigma_min_sampled=float(smin), n_channels=int(len(sc)),
+    common = dict(sigma_min_nominal=float(sv0[-1]), sigma_min_sampled=float(smin), n_channels=n_channels,
                   n_scalars=int(model.n_scalars), draws=int(draws))
     if refuted:
         return FullRankResult("refuted", 0.0, solver_status="not run",
                               reason="a sampled delta makes D(delta) rank deficient", **common)
-    if len(sc) > max_channels:
+    if n_channels > max_channels:
         return FullRankResult("skipped", 0.0, solver_status="not run",
-                              reason=f"{len(sc)} LFR channels > {max_channels}: dense LMI not attempted", **common)
+                              reason=f"{n_channels} LFR channels > {max_channels}: dense LMI not attempted", **common)
+    F = model.lfr()
+    Lm, Rm = F.L, F.R[:, :m]
+    keep = np.linalg.norm(Rm, axis=1) > 0          # tau channels do not enter D(delta)
+    Lm, Rm, sc = Lm[:, keep], Rm[keep], F.scalars[keep]
+    D0 = F.M0[:, :m]
     s, mu, status = full_rank_lmi(D0, Lm, Rm, sc, model.n_scalars)
     _, tol = schur_mu(D0, Lm, Rm, sc, s)
     if mu > tol:
