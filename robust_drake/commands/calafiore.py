@@ -30,13 +30,13 @@ def plot_study(out, directory):
 
     os.makedirs(directory, exist_ok=True)
     rec = out.get("_reconstruction") or torque_reconstruction()
-    fig, axes = subplots(2, 1, sharex=True)
+    fig, axes = subplots(2, 1, sharex=True, figsize=(9, 5))
     for j, ax in enumerate(axes):
         ax.plot(rec["t"], rec["tau_meas"][:, j], ".", ms=3, label="measured")
         ax.plot(rec["t"], rec["tau_rec"][:, j], "-", label="reconstructed (theta0)")
         ax.plot(rec["t_samples"], rec["tau_samples"][:, j], "o", mfc="none", label="n_m samples used")
         ax.set(ylabel=f"tau{j + 1} [N m]")
-    axes[0].set(title="measured and reconstructed torque, central estimate from 5 samples (CI fig. 3)")
+    axes[0].set_title("CI fig. 3: measured vs reconstructed torque (theta0 from 5 samples)", fontsize=10)
     axes[1].set(xlabel="t [s]")
     axes[0].legend()
     fig.savefig(os.path.join(directory, "fig3_torque_reconstruction.png"))
