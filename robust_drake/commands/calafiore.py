@@ -86,7 +86,7 @@ def run(args) -> int:
     if args.json:
         print_json(out)
         return 0
-    paper = {"nominal": "larger transient errors, shorter settling (figs. 5)",
+    paper = {"nominal": "larger transient errors, shorter settling (fig. 5)",
              "robust": "errors much reduced, longer settling (fig. 6)"}
     rows = []
     for law in ("nominal", "robust"):
