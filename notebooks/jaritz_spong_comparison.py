@@ -129,3 +129,25 @@ plt.figure(figsize=(10, 4))
 plt.imshow(plt.imread(path))
 plt.axis("off")
 plt.show()
+
+# %% [markdown]
+# ## Friction (section 7), eq. 65 and the epsilon search (issue 15)
+# Fig. 3 (friction curve), Coulomb vs Coulomb + viscous compensation vs friction inside each robust law,
+# the eq. 65 velocity-error filter, and the smallest epsilon without torque vibration (power above 50 Hz
+# below 1 %) against table 1. Rigid arm; BUILD_NOTES has the flexible numbers.
+
+# %%
+from robust_drake.experiments.epsilon_search import epsilon_search  # noqa: E402
+
+path = js.plot_friction_curve(OUT / "fig3_friction.png")
+fr_rows = js.friction_study(("sp1", "zc"), duration=CPT_DURATION, workers=WORKERS)
+for r in fr_rows:
+    print(f"{js.LABELS.get(r['base'], r['base']):4s} {r['variant']:16s} |error_task| = {r['error_task']:.5f} m  "
+          f"(paper: {r['paper']})")
+r64, r65 = js.run_specs([js.run_spec(4, "sp1", duration=CPT_DURATION, observer=o) for o in ("averaging", "averaging65")],
+                        workers=WORKERS, progress=False)
+print(f"eq. 64/66 {r64['error_task']:.5f} m, eq. 65 {r65['error_task']:.5f} m (paper: eq. 65 not sufficient)")
+eps = epsilon_search(("sp1", "zc"), factors=(0.25, 1.0) if SHORT else (0.0625, 0.125, 0.25, 0.5, 1, 2, 4),
+                     duration=0.6 if SHORT else None, workers=WORKERS)
+for r in eps["results"]:
+    print(f"{r['controller']:6s} epsilon found {r['epsilon']}  (table 1: {r['published']})")

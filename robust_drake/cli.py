@@ -31,6 +31,7 @@ COMMAND_MODULES = [
     "robust_drake.commands.repair",
     "robust_drake.commands.ellipsoid",
     "robust_drake.commands.calafiore",
+    "robust_drake.commands.epsilon_search",
 ]
 
 

@@ -32,6 +32,9 @@ CONTROLLERS: dict[str, str] = {
     "lgplus": "robust_drake.systems.controllers.liu_goldenberg:make_lgplus",
     "sp1_robust_friction": "robust_drake.systems.controllers.spong_friction:make_sp1_robust_friction",
     "sp2_robust_friction": "robust_drake.systems.controllers.spong_friction:make_sp2_robust_friction",
+    "zc_robust_friction": "robust_drake.systems.controllers.spong_friction:make_zc_robust_friction",
+    "lg_robust_friction": "robust_drake.systems.controllers.spong_friction:make_lg_robust_friction",
+    "lgplus_robust_friction": "robust_drake.systems.controllers.spong_friction:make_lgplus_robust_friction",
     "calafiore": "robust_drake.systems.controllers.calafiore_indri:make_calafiore",
     "calafiore_nominal": "robust_drake.systems.controllers.calafiore_indri:make_calafiore_nominal",
 }
@@ -42,6 +45,7 @@ OBSERVERS: dict[str, str] = {
     "euler": "robust_drake.systems.estimators:make_euler",
     "filtered": "robust_drake.systems.estimators:make_filtered",
     "averaging67": "robust_drake.systems.estimators:make_averaging67",
+    "averaging65": "robust_drake.systems.estimators:make_averaging65",
     "kalman": "robust_drake.systems.kalman_observer:make_kalman",
     "nonlinear": "robust_drake.systems.nonlinear_observer:make_nonlinear",
 }

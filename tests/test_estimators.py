@@ -207,3 +207,41 @@ def test_nonlinear_observer_feedforward_of_the_torque_removes_most_of_the_lag():
         rms_w = float(np.sqrt(np.mean((with_tau[SKIP:, j] - qd[SKIP:, j]) ** 2)))
         rms_o = float(np.sqrt(np.mean((without[SKIP:, j] - qd[SKIP:, j]) ** 2)))
         assert rms_w < 0.5 * rms_o, (j, rms_w, rms_o)
+
+
+# ------------------------------------------------------------------------------- JS eq. 65
+@pytest.mark.parametrize("window", [1, 3, 5])
+def test_eq65_secant_is_exact_on_ramps_and_midpoint_exact_on_parabolas(window):
+    """Eq. 65 is a secant over N samples of q~ = q - q^d: exact for an error linear in t, and for a
+    parabola the slope at the window's midpoint t_k - N T / 2 (property of the signal, not the code)."""
+    t = np.arange(0.0, 0.05, T)
+    q = np.column_stack([0.2 + 1.5 * t + 4.0 * t ** 2, -0.1 - 0.7 * t])
+    q_d = np.column_stack([0.2 + 0.5 * t + 1.0 * t ** 2, 0.3 * t])
+    v, ve = run_estimator("averaging65", q, q_d, T, window=window)
+    k = np.arange(window, len(t))
+    tm = t[k] - window * T / 2
+    np.testing.assert_allclose(ve[k, 0], 1.0 + 2 * 3.0 * tm, rtol=0, atol=1e-8)      # d/dt (1.0 t + 3 t^2)
+    np.testing.assert_allclose(ve[k, 1], np.full(len(k), -1.0), rtol=0, atol=1e-8)   # d/dt (-1.0 t)
+    np.testing.assert_allclose(v[k, 0], 1.5 + 8.0 * tm, rtol=0, atol=1e-8)           # eq. 64 on q
+    # Euler (window 1) lags half a sample, the N-sample secant N/2 samples: the lag grows with N
+    q1 = np.column_stack([np.sin(3 * t), np.zeros_like(t)])
+    assert estimator_quality(run_estimator("averaging65", q1, 0 * q1, T, window=window)[1][:, 0],
+                             3 * np.cos(3 * t), -9 * np.sin(3 * t), T, skip=window)["lag_samples"] == \
+        pytest.approx(window / 2, abs=0.05)
+
+
+def test_eq65_observer_matches_the_pure_law_from_a_moving_start():
+    """The LeafSystem's start-up history assumes rest at q0 while q^d moves at qd_d0: the first
+    v_error is then -qd_d0 exactly (no start-up kick)."""
+    from types import SimpleNamespace
+
+    from robust_drake.systems.estimators import make_averaging65
+
+    obs = make_averaging65(SimpleNamespace(n=2, period=T), window=3)
+    ctx = obs.CreateDefaultContext()
+    q0, qd0 = np.array([0.1, -0.2]), np.array([0.4, 1.2])
+    obs.set_initial(ctx, q0, q0, qd0)
+    obs.GetInputPort("q").FixValue(ctx, q0)
+    obs.GetInputPort("x_d").FixValue(ctx, np.concatenate([q0, qd0, np.zeros(2)]))
+    np.testing.assert_allclose(obs.GetOutputPort("v_error").Eval(ctx), -qd0, atol=1e-9)
+    np.testing.assert_allclose(obs.GetOutputPort("v").Eval(ctx), 0.0, atol=1e-12)

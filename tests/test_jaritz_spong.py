@@ -290,3 +290,90 @@ def test_a_failed_run_is_reported_and_the_others_complete():
     assert "unstable" in rows[0]["error"] and math.isnan(rows[0]["error_task"])
     assert "error" not in rows[1] and rows[1]["error_task"] > 0
     assert "FAILED" in js.format_paper_table(4, rows)
+
+
+# ------------------------------------------------------------------------------ section 7 (friction)
+def test_friction_curve_is_the_torque_the_plant_block_applies():
+    """JS fig. 3 analog: the plotted curve is what the simulated plant's friction block applies
+    (evaluated through the Drake system), and the Coulomb approximation differs from it by at most
+    |F_C - k_hat| + F_v |qd|."""
+    from robust_drake.systems.friction import CoulombViscousFriction
+
+    c = js.friction_curve(qd_max=2.0, points=41)
+    blk = CoulombViscousFriction(2, c["coulomb"], c["viscous"])
+    ctx = blk.CreateDefaultContext()
+    for i in range(0, 41, 4):
+        blk.get_input_port(0).FixValue(ctx, [0.3, -0.1, c["qd"][i], -c["qd"][i]])
+        out = blk.get_output_port(0).Eval(ctx)
+        assert -out[0] == pytest.approx(c["plant"][i, 0], abs=1e-12)
+        assert out[1] == pytest.approx(c["plant"][i, 1], abs=1e-12)      # odd in qd
+    gap = np.abs(c["plant"] - c["coulomb_hat"])
+    allowed = np.abs(np.subtract(c["coulomb"], c["k_hat"])) + np.outer(np.abs(c["qd"]), c["viscous"])
+    assert np.all(gap <= allowed + 1e-12)
+    assert np.all(np.diff(c["plant"], axis=0) >= 0)                       # friction is monotone in qd
+
+
+def test_friction_group_of_zc_lg_variants_dissipates_any_friction_within_bounds():
+    """The friction term added to ZC / LG: r^T (Y_F (k_hat + u_F) - F_C sgn q') <= eps_F rho_F / 4 for
+    every true Coulomb level with |k - k_hat| <= rho_k (the boundary-layer bound), q' != 0."""
+    from robust_drake.systems.controllers.spong_friction import K_HAT, RHO_K, friction_robust_term
+
+    rng = np.random.default_rng(4)
+    rho = math.hypot(*RHO_K)
+    Lam = (50.0, 20.0)
+    worst = -np.inf
+    for _ in range(2000):
+        q_d, dq, v, ve = rng.normal(size=(4, 2))
+        scale = rng.choice([1e-4, 1e-3, 1e-2, 1.0])
+        q, ve = q_d + scale * dq, scale * ve
+        k = np.array(K_HAT) + rng.uniform(-1, 1, 2) * np.array(RHO_K)
+        r = ve + np.array(Lam) * (q - q_d)
+        f = np.array(friction_robust_term(q_d, q, v, ve, Lam))
+        worst = max(worst, r @ (f - k * np.sign(v)))
+    assert worst <= 1.0 * rho / 4 + 1e-12
+    assert worst > 0.5 * rho / 4                 # and is approached inside the layer (not vacuous)
+
+
+def test_zc_and_lg_plus_with_friction_inside_beat_no_compensation():
+    """Table 2 setting (no fixed compensation), 1 s CPT: friction inside ZC / LG+ tracks better than
+    the rigid laws with no compensation at all (measured: ZC 0.0358 -> 0.0167 m, LG+ 0.0270 -> 0.0086 m).
+    The paper's 'much worse than fixed compensation' is NOT reproduced (BUILD_NOTES) and not asserted."""
+    specs = []
+    for c in ("zc", "lgplus"):
+        base = js.run_spec(2, c, duration=1.0)
+        specs += [base, dict(base, controller=f"{c}_robust_friction", controller_params={})]
+    rows = js.run_specs(specs, workers=1, progress=False)
+    for plain, rf in (rows[0:2], rows[2:4]):
+        assert not rf["diverged"], rf
+        assert rf["error_task"] < 0.7 * plain["error_task"], (plain["controller"], plain["error_task"], rf["error_task"])
+
+
+def test_zc_robust_friction_refuses_double_compensation():
+    from robust_drake.diagram import ClosedLoopConfig, simulate
+    from robust_drake.errors import RobustDrakeError
+
+    with pytest.raises(RobustDrakeError, match="compensated twice"):
+        simulate(ClosedLoopConfig(robot="d2r2", controller="zc_robust_friction", trajectory="cpt",
+                                  friction_compensation=True, duration=0.01))
+
+
+def test_viscous_compensation_adds_the_viscous_torque():
+    """Section 7.1 with the viscous term: SP1 on the 1 s CPT tracks better with F_v_hat v added
+    (measured 0.00626 -> 0.00528 m; the paper found no significant gain, BUILD_NOTES), and the
+    command rises by about F_v_hat v on average."""
+    rows = js.run_specs([js.run_spec(4, "sp1", duration=1.0),
+                         js.run_spec(4, "sp1", duration=1.0, viscous_compensation=True)], workers=1, progress=False)
+    assert rows[1]["viscous_compensation"] and not rows[0]["viscous_compensation"]
+    assert rows[1]["error_task"] < 0.95 * rows[0]["error_task"], (rows[0]["error_task"], rows[1]["error_task"])
+    with pytest.raises(Exception, match="tables 4-7"):
+        js.run_spec(2, "sp1", viscous_compensation=True)
+
+
+def test_eq65_velocity_error_filter_resonates_on_the_flexible_arm_only():
+    """Section 6: the eq. 65 velocity-error filter 'was not working sufficiently' and eq. 66 replaced it.
+    Reproduced by the flexible D2R2 only (1 s CPT, table 4, SP1; measured error_task 0.0509 vs 0.0071 m,
+    joint-1 torque TV 40982 vs 2383 N m/s); on the rigid arm eq. 65 equals eq. 64 (0.00954 vs 0.00953)."""
+    specs = [js.run_spec(4, "sp1", observer=o, model="flexible", duration=1.0) for o in ("averaging", "averaging65")]
+    avg, e65 = js.run_specs(specs, workers=1, progress=False)
+    assert e65["error_task"] > 3 * avg["error_task"], (avg["error_task"], e65["error_task"])
+    assert e65["tau_tv_per_s"][0] > 5 * avg["tau_tv_per_s"][0]

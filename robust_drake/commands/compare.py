@@ -27,6 +27,8 @@ def register(sub):
     p.add_argument("--rigid", action="store_true", help="rigid arm (the default; with --flexible: both, side by side)")
     p.add_argument("--flexible", action="store_true",
                    help="flexible D2R2: two-mass drives, motor-side encoders, link-2 bending (BUILD_NOTES 'Flexible D2R2')")
+    p.add_argument("--viscous-compensation", action="store_true",
+                   help="add F_v_hat v to the fixed Coulomb compensation (JS section 7.1; tables 4-7)")
     p.add_argument("--workers", type=int, default=None, help="parallel runs (default: the core count)")
     add_output_flags(p, plot="DIR")
     p.set_defaults(func=run)
@@ -59,7 +61,7 @@ def run(args) -> int:
         raise RobustDrakeError(f"--duration must be positive (got {args.duration})")
     models = [m for m, on in (("rigid", args.rigid), ("flexible", args.flexible)) if on] or ["rigid"]
     specs = [js.run_spec(t, c, duration=args.duration, rate=args.rate, observer=args.observer,
-                         logs=bool(args.plot), model=m)
+                         logs=bool(args.plot), model=m, viscous_compensation=args.viscous_compensation)
              for t in tables for c in controllers for m in models]
     rows = js.run_specs(specs, workers=args.workers, progress=not args.json, desc="compare")
     plots = []
@@ -70,6 +72,7 @@ def run(args) -> int:
                 if trows:
                     out = args.plot if m == "rigid" else str(__import__("pathlib").Path(args.plot) / m)
                     plots.append(str(js.plot_table(t, trows, out)))
+        plots.append(str(js.plot_friction_curve(__import__("pathlib").Path(args.plot) / "fig3_friction.png")))
     for r in rows:
         r.pop("logs", None)
     failed = [r for r in rows if "error" in r]

@@ -103,7 +103,8 @@ def _check_table(table) -> int:
 
 def run_spec(table: int, controller: str, *, duration: float | None = None, rate: float = 2500.0,
              observer: str = "averaging", observer_params: dict | None = None, logs: bool = False,
-             controller_params: dict | None = None, model: str = "rigid") -> dict:
+             controller_params: dict | None = None, model: str = "rigid",
+             viscous_compensation: bool = False) -> dict:
     """The spec (a plain, picklable dict) of one run behind ``table``.
 
     ``model``: ``"rigid"`` (the foundation's arm) or ``"flexible"`` (two-mass drives, motor-side
@@ -111,6 +112,9 @@ def run_spec(table: int, controller: str, *, duration: float | None = None, rate
 
     ``duration`` shortens the run (tests, notebooks); on the circle the criteria skip
     ``min(1 s, duration / 7)`` so a shortened circle still drops the initial transient.
+
+    ``viscous_compensation``: add ``F_v_hat v`` (F_v_hat = the plant's viscous coefficients) to the
+    fixed Coulomb compensation of eqs. 89-90 (section 7.1); only for tables with compensation.
     """
     table = _check_table(table)
     _check_model(model)
@@ -121,7 +125,10 @@ def run_spec(table: int, controller: str, *, duration: float | None = None, rate
     skip = 0.0
     if traj == "circle":
         skip = CIRCLE_SKIP if duration is None else min(CIRCLE_SKIP, duration / 7.0)
-    return dict(table=table, controller=controller, load=t["load"],
+    if viscous_compensation and not t["friction_compensation"]:
+        raise RobustDrakeError(f"viscous compensation adds to the fixed compensation of eqs. 89-90, which table "
+                               f"{table} does not use (tables 4-7 do)")
+    return dict(table=table, controller=controller, load=t["load"], viscous_compensation=bool(viscous_compensation),
                 friction_compensation=t["friction_compensation"], trajectory=traj,
                 controller_params=params, metrics_skip=skip, duration=duration, rate=float(rate),
                 observer=observer, observer_params=dict(observer_params or {}), logs=logs, model=model)
@@ -148,7 +155,16 @@ def config_for(spec: dict):
         controller_params=dict(spec["controller_params"]), trajectory=spec["trajectory"],
         rate=spec["rate"], observer=spec["observer"], observer_params=dict(spec["observer_params"]),
         friction_compensation=spec["friction_compensation"], duration=spec["duration"],
-        metrics_skip=spec["metrics_skip"], flexibility=_flexibility(spec))
+        metrics_skip=spec["metrics_skip"], flexibility=_flexibility(spec),
+        compensation_params=_compensation_params(spec))
+
+
+def _compensation_params(spec: dict) -> dict:
+    if not spec.get("viscous_compensation"):
+        return {}
+    from robust_drake.systems.friction import D2R2_K_HAT, D2R2_VISCOUS
+
+    return {"k_hat": list(D2R2_K_HAT), "viscous_hat": list(D2R2_VISCOUS)}
 
 
 def _flexibility(spec: dict):
@@ -166,6 +182,7 @@ def run_one(spec: dict) -> dict:
     res = simulate(config_for(spec))
     row = {k: spec[k] for k in ("table", "controller", "load", "friction_compensation", "trajectory", "rate", "observer")}
     row["model"] = spec.get("model", "rigid")
+    row["viscous_compensation"] = bool(spec.get("viscous_compensation", False))
     row.update({k: float(res.metrics[k]) for k in METRIC_KEYS})
     row.update(diverged=bool(res.diverged), divergence_reason=res.divergence_reason,
                wall_seconds=float(res.wall_seconds),
@@ -230,6 +247,8 @@ def format_paper_table(table: int, rows: list[dict]) -> str:
         name = LABELS.get(r["controller"], r["controller"])
         if r.get("model", "rigid") != "rigid":
             name += f" [{r['model']}]"
+        if r.get("viscous_compensation"):
+            name += " +visc"
         if "error" in r:
             body.append([name, *(["FAILED"] * 6)])
             continue
@@ -341,3 +360,85 @@ def plot_sweep(rows: list[dict], path) -> pathlib.Path:
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     return path
+
+
+# ------------------------------------------------------------------------------ friction (section 7)
+#: Section 7.2 as the paper reports it (no numbers are printed for these variants).
+FRICTION_PAPER = {
+    "coulomb": "tables 4-5 (eqs. 89-90, k_hat = (1, 2) N m)",
+    "coulomb+viscous": "not significantly better than Coulomb only (sec. 7.1)",
+    "sp1_robust_friction": "not better than fixed compensation (sec. 7.2)",
+    "sp2_robust_friction": "not better than fixed compensation (sec. 7.2)",
+    "zc_robust_friction": "much worse than fixed compensation (sec. 7.2)",
+    "lgplus_robust_friction": "much worse than fixed compensation (sec. 7.2)",
+}
+
+
+def friction_curve(qd_max: float = 3.0, points: int = 601) -> dict:
+    """JS fig. 3: friction torque against joint velocity for both D2R2 joints (eqs. 86-88) with the
+    simulated plant's parameters, beside the Coulomb-only approximation of eqs. 89-90
+    (``k_hat sgn qd``) and the Coulomb + viscous one. Velocities in rad/s, torques in N m."""
+    from robust_drake.systems.friction import D2R2_COULOMB, D2R2_K_HAT, D2R2_VISCOUS, coulomb_viscous_force
+
+    qd = np.linspace(-qd_max, qd_max, points)
+    Q = np.column_stack([qd, qd])
+    return {"qd": qd, "plant": coulomb_viscous_force(Q, D2R2_COULOMB, D2R2_VISCOUS),
+            "coulomb_hat": coulomb_viscous_force(Q, D2R2_K_HAT, (0.0, 0.0)),
+            "coulomb_viscous_hat": coulomb_viscous_force(Q, D2R2_K_HAT, D2R2_VISCOUS),
+            "coulomb": list(D2R2_COULOMB), "viscous": list(D2R2_VISCOUS), "k_hat": list(D2R2_K_HAT)}
+
+
+def plot_friction_curve(path, qd_max: float = 3.0) -> pathlib.Path:
+    """Write the JS fig. 3 analog to ``path`` (png)."""
+    from robust_drake.plotting import subplots
+
+    c = friction_curve(qd_max)
+    path = pathlib.Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig, axes = subplots(1, 2, figsize=(10, 3.8))
+    for j, ax in enumerate(axes):
+        ax.plot(c["qd"], c["plant"][:, j], "-", label="plant friction (eq. 86)")
+        ax.plot(c["qd"], c["coulomb_hat"][:, j], ":", label="Coulomb approximation (eqs. 89-90)")
+        ax.plot(c["qd"], c["coulomb_viscous_hat"][:, j], "--", lw=0.8, label="Coulomb + viscous compensation")
+        ax.set(xlabel=f"qd{j + 1} [rad/s]", ylabel=f"F{j + 1} [N m]", title=f"joint {j + 1}")
+    axes[0].legend(fontsize=7)
+    fig.suptitle("Friction torque and its approximation (cf. JS fig. 3, simulated D2R2 parameters)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    return path
+
+
+def friction_study_specs(controllers=CONTROLLERS, *, load: str = "none", duration=None, model: str = "rigid",
+                         robust=True) -> list[dict]:
+    """Runs of section 7 on the CPT: each controller with the fixed Coulomb compensation (eqs. 89-90),
+    with Coulomb + viscous compensation, and (``robust``) with the friction inside its robust law
+    (``<controller>_robust_friction``, no fixed compensation). ``variant`` names the scheme."""
+    table_comp = 4 if load == "none" else 5
+    table_none = 2 if load == "none" else 3
+    specs = []
+    for c in controllers:
+        for variant, kw in (("coulomb", {}), ("coulomb+viscous", {"viscous_compensation": True})):
+            s = run_spec(table_comp, c, duration=duration, model=model, **kw)
+            s["variant"] = variant
+            specs.append(s)
+        rf = {"lgplus": "lgplus_robust_friction", "lg": "lg_robust_friction", "zc": "zc_robust_friction",
+              "sp1": "sp1_robust_friction", "sp2": "sp2_robust_friction"}.get(c)
+        if robust and rf:
+            s = run_spec(table_none, c, duration=duration, model=model)
+            s.update(controller=rf, variant="robust", controller_params={})
+            specs.append(s)
+    return specs
+
+
+def friction_study(controllers=CONTROLLERS, *, load="none", duration=None, model="rigid", workers=None,
+                   progress=False, robust=True) -> list[dict]:
+    """Section 7 comparison; rows carry ``base`` (the rigid-law name), ``variant`` and ``paper``."""
+    specs = friction_study_specs(controllers, load=load, duration=duration, model=model, robust=robust)
+    rows = run_specs(specs, workers=workers, progress=progress, desc="friction")
+    for spec, r in zip(specs, rows):
+        r["variant"] = spec["variant"]
+        r["base"] = spec["controller"].replace("_robust_friction", "")
+        r["paper"] = FRICTION_PAPER.get(spec["controller"] if spec["variant"] == "robust" else spec["variant"])
+        if spec["variant"] != "coulomb":
+            r["published"] = None
+    return rows

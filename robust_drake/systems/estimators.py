@@ -4,7 +4,10 @@ Three estimators from encoder positions ``q_k`` (quantised) and the reference ``
 
 - ``euler``: the Euler difference, JS eq. 60, ``v_k = (q_k - q_{k-1}) / T``;
 - ``filtered``: the filtered derivative, JS eqs. 61-63, ``v_k = nu v_{k-1} + g (q_k - q_{k-1}) / T``;
-- ``averaging67``: the recursive average of JS eq. 67, ``v_k = (sum_{i=1}^{n-1} v_{k-i} + (q_k - q_{k-1}) / T) / n``.
+- ``averaging67``: the recursive average of JS eq. 67, ``v_k = (sum_{i=1}^{n-1} v_{k-i} + (q_k - q_{k-1}) / T) / n``;
+- ``averaging65``: JS eq. 64 for v and eq. 65 for the velocity error, the plain n-sample secant
+  on q~ = q - q^d, ``e'_k = ((q_k - q_{k-n}) - (q^d_k - q^d_{k-n})) / (n T)`` (the filter the
+  paper tried first and found "was not working sufficiently", replaced by eq. 66).
 
 Each also estimates the derivative of the tracking error ``q~ = q - q^d`` by running the
 *same* filter on ``q~`` (JS eq. 63: "the desired velocity for the velocity error is calculated
@@ -105,14 +108,41 @@ def initial_history(kind: str, q0, qt0, **params) -> np.ndarray:
     qt0 = np.asarray(qt0, float)
     n = len(q0)
     size = {"euler": euler_history_size(n), "filtered": filtered_history_size(n),
-            "averaging67": averaging67_history_size(n, params.get("window", 3))}[kind]
+            "averaging67": averaging67_history_size(n, params.get("window", 3)),
+            "averaging65": averaging65_history_size(n, params.get("window", 3))}[kind]
     h = np.zeros(size)
+    if kind == "averaging65":
+        N = params.get("window", 3)
+        return np.concatenate([np.tile(q0, N), np.tile(qt0, N)])
     h[:n] = q0
     h[n:2 * n] = qt0
     return h
 
 
-STEP_LAWS = {"euler": euler_step, "filtered": filtered_step, "averaging67": averaging67_step}
+def averaging65_history_size(n: int, window: int = 3) -> int:
+    return 2 * n * window
+
+
+def averaging65_step(h, q, qt, T, window=3):
+    """JS eq. 64 (v) and eq. 65 (v_error): ``(x_k - x_{k-N}) / (N T)`` for x = q and x = q~.
+
+    A secant over N samples: exact for a signal linear in t, and for any quadratic it returns the
+    derivative at the window's midpoint ``t_k - N T / 2`` (a delay of N/2 samples).
+    History: ``window`` past q's then ``window`` past q~'s, newest first.
+    """
+    n = len(q)
+    N = int(window)
+    q = np.asarray(q, float)
+    qt = np.asarray(qt, float)
+    pq = h[:N * n].reshape(N, n)
+    pe = h[N * n:].reshape(N, n)
+    v = (q - pq[-1]) / (N * T)
+    ve = (qt - pe[-1]) / (N * T)
+    return v, ve, np.concatenate([np.vstack([q[None], pq[:-1]]).ravel(), np.vstack([qt[None], pe[:-1]]).ravel()])
+
+
+STEP_LAWS = {"euler": euler_step, "filtered": filtered_step, "averaging67": averaging67_step,
+             "averaging65": averaging65_step}
 
 
 def run_estimator(kind: str, q, q_d, T, **params):
@@ -183,8 +213,12 @@ class _FiniteDifferenceObserver(DiscreteObserver):
     def initial_history(self, q0, q_d0, qd_d0):
         """At rest at q0 before t = 0: the past error slope is -qd_d0 (q~' = q' - qd_d)."""
         T = self.period
-        h = initial_history(self.kind, q0, q0 - q_d0 + T * qd_d0, **self.params)
         n = self.n
+        if self.kind == "averaging65":
+            N = self.params.get("window", 3)
+            past = [q0 - q_d0 + (i + 1) * T * qd_d0 for i in range(N)]   # q~_{k-1-i}, newest first
+            return np.concatenate([np.tile(q0, N), np.concatenate(past)])
+        h = initial_history(self.kind, q0, q0 - q_d0 + T * qd_d0, **self.params)
         if self.kind == "filtered":
             h[3 * n:4 * n] = -qd_d0
         elif self.kind == "averaging67":
@@ -224,6 +258,22 @@ class Averaging67Observer(_FiniteDifferenceObserver):
             raise RobustDrakeError(f"averaging window must be >= 1, got {window}")
         super().__init__(n, period, averaging67_history_size(n, int(window)), "Averaging67Observer",
                          window=int(window))
+
+
+class Averaging65Observer(_FiniteDifferenceObserver):
+    """JS eq. 64 (v) and eq. 65 (v_error), window ``window`` (paper: 3)."""
+
+    kind = "averaging65"
+
+    def __init__(self, n, period, window=3):
+        if int(window) < 1:
+            raise RobustDrakeError(f"averaging window must be >= 1, got {window}")
+        super().__init__(n, period, averaging65_history_size(n, int(window)), "Averaging65Observer",
+                         window=int(window))
+
+
+def make_averaging65(ctx, window=3):
+    return Averaging65Observer(ctx.n, ctx.period, window=window)
 
 
 def make_euler(ctx):

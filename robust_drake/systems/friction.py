@@ -8,7 +8,8 @@ with its own parameters, so a study can give the "true" plant different friction
 what the controller assumes.
 
 Controller side: :class:`FixedFrictionCompensation`, JS eqs. 89-90: the torque command is
-increased by F_C_hat sgn(qd_hat) with F_C_hat = diag(k1_hat, k2_hat) (paper: 1 and 2 N m).
+increased by F_C_hat sgn(qd_hat) with F_C_hat = diag(k1_hat, k2_hat) (paper: 1 and 2 N m), and
+optionally by the viscous term F_v_hat qd_hat (section 7.1, ``viscous_hat``).
 """
 
 from __future__ import annotations
@@ -96,10 +97,13 @@ class FixedFrictionCompensation(LeafSystem):
     the input ports only, and their sources are discrete states.
     """
 
-    def __init__(self, n: int, k_hat=D2R2_K_HAT):
+    def __init__(self, n: int, k_hat=D2R2_K_HAT, viscous_hat=None):
         super().__init__()
         self.n = int(n)
         self.k_hat = _per_joint(k_hat, n, "k_hat")
+        # optional viscous compensation F_v_hat v (JS section 7.1: "compensating for the viscous
+        # friction did not improve performance significantly")
+        self.viscous_hat = np.zeros(self.n) if viscous_hat is None else _per_joint(viscous_hat, n, "viscous_hat")
         self._u = self.DeclareVectorInputPort("u", self.n)
         self._v = self.DeclareVectorInputPort("v", self.n)
         self.DeclareVectorOutputPort(
@@ -108,7 +112,8 @@ class FixedFrictionCompensation(LeafSystem):
         )
 
     def _calc(self, context, output):
-        output.get_mutable_value()[:] = self._u.Eval(context) + self.k_hat * np.sign(self._v.Eval(context))
+        v = self._v.Eval(context)
+        output.get_mutable_value()[:] = self._u.Eval(context) + self.k_hat * np.sign(v) + self.viscous_hat * v
 
 
 def make_coulomb_viscous(ctx, coulomb=D2R2_COULOMB, viscous=D2R2_VISCOUS):

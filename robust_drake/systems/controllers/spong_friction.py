@@ -27,6 +27,7 @@ import math
 import numpy as np
 
 from robust_drake.errors import RobustDrakeError
+from robust_drake.systems.controllers.base import DiscreteController
 from robust_drake.systems.controllers.spong import (
     D2R2_K,
     D2R2_LAMBDA,
@@ -102,3 +103,73 @@ def make_sp2_robust_friction(ctx, k_hat=K_HAT, rho_k=RHO_K, **params):
     """Registry factory ``sp2_robust_friction``."""
     return _make_robust_friction(ctx, "sp2_robust_friction", SpongSP2Controller, 1, EPSILON_SP2,
                                  "SP2RobustFriction", k_hat, rho_k, params)
+
+
+# ---------------------------------------------------------------------------------------------
+# ZC and LG with the friction inside the robust law (JS section 7.2, last paragraph: "when the
+# friction terms were incorporated into the other algorithms, ZC and LG, the performance was, in
+# fact, much worse"). The paper does not print these laws; ours add to the unchanged ZC / LG law
+# a friction group built as eqs. 91-92 build it for SP1:
+#
+#     tau = tau_ZC or LG + Y_F (k_hat + u_F),   Y_F = diag(sgn q'),
+#     u_F = -rho_F Y_F^T r / ||Y_F^T r||  if ||Y_F^T r|| > eps_F,  else  -(rho_F / eps_F) Y_F^T r,
+#
+# the SP1-type saturation LG already uses for its inertia and Coriolis groups (eqs. 38-39), with
+# rho_F = ||rho_k|| bounding |k - k_hat| and eps_F = 1 (SP1's table-1 value for the same
+# saturation). With F_C sgn(q') the true friction, r^T (Y_F (k_hat + u_F) - F_C sgn q') <= eps_F rho_F / 4
+# for any |k - k_hat| <= rho_F, so the friction adds a term of the usual boundary-layer size to
+# the ultimate bound, and each law keeps its own guarantee for the rigid-body part.
+# ---------------------------------------------------------------------------------------------
+EPSILON_F = 1.0
+
+
+def friction_robust_term(q_d, q, v, v_error, Lambda, k_hat=K_HAT, rho_k=RHO_K, eps_F=EPSILON_F):
+    """``Y_F (k_hat + u_F)`` above (N m per joint); ``v`` the estimated q', ``v_error`` the estimated q~'."""
+    n = len(q)
+    sg = [_sgn(v[i]) for i in range(n)]
+    xi = [sg[i] * (v_error[i] + Lambda[i] * (q[i] - q_d[i])) for i in range(n)]   # Y_F^T r, r eq. 11
+    rho = math.sqrt(sum(x * x for x in rho_k))
+    nrm = math.sqrt(sum(x * x for x in xi))
+    u = [-rho * x / nrm for x in xi] if nrm > eps_F else [-(rho / eps_F) * x for x in xi]
+    return [sg[i] * (k_hat[i] + u[i]) for i in range(n)]
+
+
+class RobustFrictionWrapper(DiscreteController):
+    """A rigid ZC / LG controller (``inner``, used only through its pure ``compute``) plus
+    :func:`friction_robust_term`; the builder's fixed compensation must stay off."""
+
+    def __init__(self, inner, name, k_hat=K_HAT, rho_k=RHO_K, eps_F=EPSILON_F):
+        super().__init__(inner.n, inner.period, name=name)
+        if eps_F <= 0 or min(rho_k) < 0 or min(k_hat) < 0:
+            raise RobustDrakeError(f"friction term needs eps_F > 0, rho_k >= 0, k_hat >= 0 (got {eps_F}, {rho_k}, {k_hat})")
+        self.inner = inner
+        self.Lambda = tuple(float(x) for x in inner.Lambda)
+        self.k_hat, self.rho_k, self.eps_F = tuple(map(float, k_hat)), tuple(map(float, rho_k)), float(eps_F)
+
+    def compute(self, t, q_d, qd_d, qdd_d, q, v, v_error):
+        tau = self.inner.compute(t, q_d, qd_d, qdd_d, q, v, v_error)
+        f = friction_robust_term(q_d, q, v, v_error, self.Lambda, self.k_hat, self.rho_k, self.eps_F)
+        return [a + b for a, b in zip(tau, f)]
+
+
+def _wrap(ctx, name, module, factory, k_hat, rho_k, eps_F, params):
+    import importlib
+
+    _check(ctx, name)
+    inner = getattr(importlib.import_module(f"robust_drake.systems.controllers.{module}"), factory)(ctx, **params)
+    return RobustFrictionWrapper(inner, name, k_hat, rho_k, eps_F)
+
+
+def make_zc_robust_friction(ctx, k_hat=K_HAT, rho_k=RHO_K, eps_F=EPSILON_F, **params):
+    """Registry factory ``zc_robust_friction``: ZC (JS eq. 25) + the friction group above."""
+    return _wrap(ctx, "zc_robust_friction", "zenieh_corless", "make_zc", k_hat, rho_k, eps_F, params)
+
+
+def make_lg_robust_friction(ctx, k_hat=K_HAT, rho_k=RHO_K, eps_F=EPSILON_F, **params):
+    """Registry factory ``lg_robust_friction``: LG (JS eq. 36, nominal at the unloaded arm) + friction group."""
+    return _wrap(ctx, "lg_robust_friction", "liu_goldenberg", "make_lg", k_hat, rho_k, eps_F, params)
+
+
+def make_lgplus_robust_friction(ctx, k_hat=K_HAT, rho_k=RHO_K, eps_F=EPSILON_F, **params):
+    """Registry factory ``lgplus_robust_friction``: LG+ + friction group."""
+    return _wrap(ctx, "lgplus_robust_friction", "liu_goldenberg", "make_lgplus", k_hat, rho_k, eps_F, params)
