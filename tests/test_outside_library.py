@@ -197,7 +197,8 @@ def test_outside_effect_is_flagged_where_it_sits(robot, case, tmp_path_factory):
 
 @pytest.mark.xfail(strict=False, reason="needs the selection hook (diagnostic kinds as candidates, "
                    "repair.py/selection.py owned by h8) and h8's never-worse guard: today the "
-                   "3.1 Hz disturbance still draws time_delay/position_dependent/rotor_inertia")
+                   "3.1 Hz disturbance on A.0 draws time_delay/position_dependent/rotor_inertia, the "
+                   "dead-zone torque_scale + position_dependent")
 @pytest.mark.parametrize("robot", ROBOTS)
 @pytest.mark.parametrize("case", CASES)
 def test_outside_effect_not_misattributed(robot, case, tmp_path_factory):
