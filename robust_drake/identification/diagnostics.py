@@ -3,7 +3,9 @@
 Pure functions on an :class:`~robust_drake.identification.data.IdentData` and its residual
 r = tau_measured - Y theta_hat (N, n) [N m]. Each test returns the rows that fired, each a dict
 with ``test``, ``joint`` (0-based) and where the structure sits (frequency [Hz], time [s] or
-torque range [N m]); :func:`diagnose` runs them all. Samples of the filtered residual are
+torque range [N m]), plus ``variable`` (a readable description) and ``eta2`` (the share of the
+residual variance the structure explains) so the rows read like the state-dependence rows of
+:mod:`residual` in reports; :func:`diagnose` runs them all. Samples of the filtered residual are
 correlated over 1 / (2 f_c) (f_c the data's low-pass cut-off), so standard errors use the
 effective count N_eff = N * 2 f_c dt (``residual._decimation``).
 
@@ -108,8 +110,11 @@ def periodic_peaks(data, residual: np.ndarray, peak_ratio: float = PEAK_RATIO,
         Vs[np.abs(f - fk) <= lobe] = 0.0
         cum = np.cumsum(Vs)
         f_band = float(f[min(np.searchsorted(cum, MOTION_BAND * cum[-1]), len(f) - 1)])
+        amp = float(np.sqrt(p[k]))
         row = {"test": "periodic", "joint": j, "frequency_hz": float(fk),
-               "amplitude": float(np.sqrt(p[k])), "peak_ratio": float(ratio),
+               "amplitude": amp, "peak_ratio": float(ratio),
+               "variable": f"t (periodic {fk:.3f} Hz)",
+               "eta2": float(min(1.0, 0.5 * amp ** 2 / max(np.mean(residual[:, j] ** 2), 1e-300))),
                "motion_power_rel": motion, "motion_band_hz": f_band}
         if ratio >= peak_ratio and (motion < motion_rel or fk > f_band):
             out.append(row)
@@ -155,8 +160,24 @@ def friction_drift(data, residual: np.ndarray, z_min: float = DRIFT_Z, share: fl
                 if z >= z_min and eff >= share and (best is None or z > best["z"]):
                     best = row
         if best is not None:
+            best["variable"] = f"t ({best['coefficient']} drift)"
+            best["eta2"] = _drift_share(data, residual[:, j], j)
             out.append(best)
     return out
+
+
+def _drift_share(data, r, j) -> float:
+    """Share of r's variance that [t qd_j, t sign qd_j] explain beyond [1, qd_j, sign qd_j]
+    (t from each file's start)."""
+    t = data.t.copy()
+    for s in _segments(data):
+        t[s] = t[s] - t[s[0]]
+    qd = data.qd[:, j]
+    X0 = np.column_stack([np.ones(len(r)), qd, np.sign(qd)])
+    X1 = np.column_stack([X0, t * qd, t * np.sign(qd)])
+    rss = [float(np.sum((r - X @ np.linalg.lstsq(X, r, rcond=None)[0]) ** 2)) for X in (X0, X1)]
+    tot = float(np.sum((r - r.mean()) ** 2)) or 1e-300
+    return float((rss[0] - rss[1]) / tot)
 
 
 def dead_band(data, residual: np.ndarray, share: float = DEADBAND_SHARE, alpha: float = ALPHA) -> list[dict]:
@@ -188,6 +209,7 @@ def dead_band(data, residual: np.ndarray, share: float = DEADBAND_SHARE, alpha: 
         p = float(fdist.sf(F * 1.0, 1, max(n_eff - 5, 1.0)))
         if gain >= share and p < alpha and SAT_SHARE[0] <= c <= SAT_SHARE[1]:
             out.append({"test": "dead_band", "joint": j, "threshold": d, "torque_range": [-d, d],
+                        "variable": f"tau{j + 1} (dead band |tau| < {d:.3g})", "eta2": float(gain),
                         "saturation_share": c, "variance_explained": float(gain), "p": p})
     return out
 
@@ -197,7 +219,8 @@ def generalization(fit_residual: np.ndarray, validate_residual: np.ndarray, rati
     rf = np.sqrt(np.mean(np.asarray(fit_residual) ** 2, axis=0))
     rv = np.sqrt(np.mean(np.asarray(validate_residual) ** 2, axis=0))
     return [{"test": "generalization", "joint": j, "rms_fit": float(a), "rms_validate": float(b),
-             "ratio": float(b / a)} for j, (a, b) in enumerate(zip(rf, rv)) if a > 0 and b > ratio * a]
+             "ratio": float(b / a), "variable": f"validation (rms x{b / a:.2f} the fit's)",
+             "eta2": float(1.0 - (a / b) ** 2)} for j, (a, b) in enumerate(zip(rf, rv)) if a > 0 and b > ratio * a]
 
 
 def diagnose(data, residual: np.ndarray, validate_residual: np.ndarray | None = None) -> list[dict]:
