@@ -14,8 +14,11 @@ effective count N_eff = N * 2 f_c dt (``residual._decimation``).
    ``PEAK_RATIO`` times the spectral floor (median of the band 2/T .. f_c) and which is not a
    harmonic of the motion: at that frequency every joint's velocity spectrum lies below
    ``MOTION_REL`` of its own maximum (a model error driven by the motion sits where the motion
-   has power; a disturbance of the environment need not) or the peak lies above the motion's band
-   (the frequency below which ``MOTION_BAND`` of the velocity power lies). The frequency is refined by a local
+   has power; a disturbance of the environment need not), or the peak lies above twice the
+   motion's band (the frequency below which ``MOTION_BAND`` of the velocity power lies, the line
+   itself left out) and the velocity there is below ``MOTION_REL_ABOVE`` of its maximum (a light
+   arm moves visibly at the disturbance's own frequency: 0.10 on A.0 at 3.1 Hz; peaks at motion
+   lines measured >= 0.2, mostly 0.4-1). The frequency is refined by a local
    parabola on log power. Reported: frequency [Hz], amplitude of the sinusoid [N m].
 2. **drift** (:func:`friction_drift`): per joint and file, the residual regressed on
    [1, qd_j, sign(qd_j)] on the first and on the last third of the file; the viscous / Coulomb
@@ -46,6 +49,7 @@ from robust_drake.identification.residual import ALPHA, _decimation
 PEAK_RATIO = 300.0  # peak power / median spectral floor
 MOTION_REL = 1e-2  # velocity power at the peak / its maximum, below which a peak is not the motion's
 MOTION_BAND = 0.99  # share of the velocity power below the motion band's upper edge
+MOTION_REL_ABOVE = 0.3  # above twice the motion band, a line is the motion's only if this strong
 DRIFT_Z = 8.0
 DRIFT_SHARE = 0.15
 DEADBAND_SHARE = 0.05
@@ -107,7 +111,8 @@ def periodic_peaks(data, residual: np.ndarray, peak_ratio: float = PEAK_RATIO,
         # the motion's band, without the line itself (a disturbance moves the joint at its own
         # frequency too)
         Vs = V.sum(axis=1).copy()
-        Vs[np.abs(f - fk) <= lobe] = 0.0
+        if motion < MOTION_REL_ABOVE:  # a weak line: leave it out of the motion's band
+            Vs[np.abs(f - fk) <= lobe] = 0.0
         cum = np.cumsum(Vs)
         f_band = float(f[min(np.searchsorted(cum, MOTION_BAND * cum[-1]), len(f) - 1)])
         amp = float(np.sqrt(p[k]))
@@ -116,7 +121,7 @@ def periodic_peaks(data, residual: np.ndarray, peak_ratio: float = PEAK_RATIO,
                "variable": f"t (periodic {fk:.3f} Hz)",
                "eta2": float(min(1.0, 0.5 * amp ** 2 / max(np.mean(residual[:, j] ** 2), 1e-300))),
                "motion_power_rel": motion, "motion_band_hz": f_band}
-        if ratio >= peak_ratio and (motion < motion_rel or fk > f_band):
+        if ratio >= peak_ratio and (motion < motion_rel or (fk > 2.0 * f_band and motion < MOTION_REL_ABOVE)):
             out.append(row)
     return out
 

@@ -72,6 +72,8 @@ ARMS = {
                                     excitation=dict(amplitude=(1.0, 1.3), torque_limit=12.0)),
     "siciliano_2link": dict(effect_scale=400.0, coulomb=(2.0, 1.0), viscous=(0.4, 0.2), torque_noise_std=0.5,
                             excitation=dict(amplitude=(0.8, 1.0), torque_limit=3000.0)),
+    "serial7": dict(effect_scale=20.0, drift_scale=100.0, coulomb=0.2, viscous=0.04, torque_noise_std=0.05,
+                    excitation=dict(amplitude=0.6, torque_limit=300.0)),
 }
 
 #: case -> (kind of the hidden block, joint, parameters relative to the arm's torque scale)
@@ -82,7 +84,8 @@ def _scale(robot) -> float:
     """Size of the hidden effects relative to the A.0 cases. Siciliano: 400 (not the torque-noise
     ratio 100): with 50 kg links the encoder quantisation differentiated twice and multiplied by
     the ~100 kg m^2 inertia leaves a ~4 N m baseline residual (measured, no-effect case), so the
-    effects are sized against that, ~3-15 % of the torques."""
+    effects are sized against that, ~3-15 % of the torques. serial7: 20 (drift 100: its shoulder
+    joint moves slowly, a 20x drift stayed at z = 2.8 in the drift test)."""
     return ARMS[robot].get("effect_scale", 1.0)
 
 
@@ -113,11 +116,11 @@ def outside_case(case: str, robot: str = "dfki_double_pendulum_a0", seed: int = 
         extra = (lambda n: DeadZoneDriver(n, j, d),)
         truth = {"kind": "dead_zone", "joint": j, "parameters": {"threshold": d}}
     else:  # drift
-        rate = 0.004 * s  # b grows by rate * duration over the run (0.048 N m s/rad in 12 s on A.0)
+        rate = 0.004 * ARMS[robot].get("drift_scale", s)  # b grows by rate * duration over the run (0.048 N m s/rad in 12 s on A.0)
         extra = (lambda n: ViscousDrift(n, j, rate),)
         truth = {"kind": "friction_drift", "joint": j, "parameters": {"viscous_rate": rate}}
     truth.update(case=case, robot=robot)
-    kw = {k: v for k, v in ARMS[robot].items() if k != "effect_scale"}
+    kw = {k: v for k, v in ARMS[robot].items() if k not in ("effect_scale", "drift_scale")}
     paths = []
     for role, sd in (("fit", seed), ("validate", seed + 1)):
         path = os.path.join(out_dir, f"{case}_{role}.csv")
