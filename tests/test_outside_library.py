@@ -223,3 +223,53 @@ def test_never_worse(robot, case, tmp_path_factory):
     rep, _ = _repair(robot, case, tmp_path_factory)
     before, after = np.array(rep["baseline"]["rms_validate"]), np.array(rep["final"]["rms_validate"])
     assert np.all(after <= before * 1.01), (before, after)
+
+
+# ------------------------------------------------------------------------------ pure diagnostics
+def _synthetic(seconds=20.0, rate=250.0, seed=0):
+    """Data-like object: two joints moving at 0.2 and 0.3 Hz, 8 Hz analysis filter."""
+    t = np.arange(0.0, seconds, 1.0 / rate)
+    qd = np.column_stack([np.cos(2 * np.pi * 0.2 * t), 0.7 * np.cos(2 * np.pi * 0.3 * t)])
+    tau = np.column_stack([np.sin(2 * np.pi * 0.2 * t), 0.5 * np.sin(2 * np.pi * 0.3 * t)])
+    noise = np.random.default_rng(seed).normal(scale=0.005, size=(len(t), 2))
+    return SimpleNamespace(t=t, qd=qd, tau=tau, dt=1.0 / rate, N=len(t), n=2,
+                           segment=np.zeros(len(t), int), filter=SimpleNamespace(cutoff_hz=8.0)), noise
+
+
+def test_periodic_peak_found_at_its_frequency_and_not_at_a_motion_line():
+    data, noise = _synthetic()
+    r = noise.copy()
+    r[:, 1] += 0.05 * np.sin(2 * np.pi * 2.3 * data.t + 0.4)
+    (row,) = D.periodic_peaks(data, r)
+    assert row["joint"] == 1 and row["frequency_hz"] == pytest.approx(2.3, rel=0.005)
+    assert row["amplitude"] == pytest.approx(0.05, rel=0.1)
+    assert D.periodic_peaks(data, noise) == []
+    # a model error at the motion's own frequency (e.g. a wrong inertia) is the motion's, not a
+    # disturbance, however strong
+    r = noise.copy()
+    r[:, 0] += 0.05 * np.sin(2 * np.pi * 0.2 * data.t)
+    assert D.periodic_peaks(data, r) == []
+
+
+def test_drift_and_dead_band_fire_only_on_their_structure():
+    data, noise = _synthetic()
+    r = noise.copy()
+    r[:, 0] += 0.002 * data.t * data.qd[:, 0]  # viscous coefficient growing 2 mN m s/rad per s
+    (row,) = D.friction_drift(data, r)
+    assert row["joint"] == 0 and row["coefficient"] == "viscous"
+    assert row["last_third"] - row["first_third"] == pytest.approx(0.002 * 2 / 3 * 20.0, rel=0.15)
+    assert D.friction_drift(data, noise) == []
+    assert D.dead_band(data, r) == []  # a drift is no dead-band
+    r = noise.copy()
+    r[:, 1] += np.clip(data.tau[:, 1], -0.1, 0.1)  # torque below 0.1 N m lost
+    rows = D.dead_band(data, r)
+    assert [w["joint"] for w in rows] == [1]
+    assert rows[0]["threshold"] == pytest.approx(0.1, rel=0.25)
+    assert D.friction_drift(data, r) == []
+    assert D.dead_band(data, noise) == []
+
+
+def test_generalization_flags_a_validation_much_worse_than_the_fit():
+    fit = np.full((100, 2), 0.01)
+    val = np.column_stack([np.full(100, 0.011), np.full(100, 0.03)])
+    assert [w["joint"] for w in D.generalization(fit, val)] == [1]
