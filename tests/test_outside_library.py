@@ -273,3 +273,32 @@ def test_generalization_flags_a_validation_much_worse_than_the_fit():
     fit = np.full((100, 2), 0.01)
     val = np.column_stack([np.full(100, 0.011), np.full(100, 0.03)])
     assert [w["joint"] for w in D.generalization(fit, val)] == [1]
+
+
+# ------------------------------------------------------------------------------ the selection hook
+@pytest.mark.parametrize("case", CASES)
+def test_selection_given_the_diagnostic_candidates_names_the_outside_effect(case, tmp_path_factory):
+    """The hook proposed for repair (h8 owns repair.py/selection.py): candidates =
+    ``all_candidates(n, robot=..., diagnostics=diagnose(fit, baseline residual))``, searched by
+    the existing ``forward_select``. The outside effect is then named first, on its joint, nothing
+    misattributed, and no joint's validation gets worse (A.0 cases)."""
+    from robust_drake.identification.data import load
+    from robust_drake.identification.least_squares import load_regressor
+    from robust_drake.identification.selection import ColumnCache, fit_model, forward_select, predict_tau
+
+    robot = ROBOTS[0]
+    fit, val, truth = _case(robot, case, tmp_path_factory)
+    reg = load_regressor(robot)
+    cf, cv = ColumnCache(load(fit, robot=robot), reg), ColumnCache(load(val, robot=robot), reg)
+    base, _ = fit_model(cf, [])
+    cands = all_candidates(cf.data.n, robot=robot, diagnostics=D.diagnose(cf.data, base.residual))
+    chosen = forward_select(cf, cands).chosen
+    assert chosen and (chosen[0].kind, chosen[0].joint) == (truth["kind"], truth["joint"]), chosen
+    assert not [e.name for e in chosen if e.kind in MISATTRIBUTED]
+    final, _ = fit_model(cf, chosen)
+    rms = lambda r: np.sqrt(np.mean(r ** 2, axis=0))  # noqa: E731
+    before = rms(cv.data.tau - predict_tau(cv, [], base.theta))
+    after = rms(cv.data.tau - predict_tau(cv, chosen, final.theta))
+    assert np.all(after <= before * 1.01), (before, after)
+    j = truth["joint"]
+    assert after[j] <= 0.5 * before[j], (before, after)
