@@ -891,7 +891,7 @@ class DeadZone(Effect):
 
     Columns: clip(tau_j, -d, d) (the torque the motor spends without effect), coefficient
     ``share`` c (dimensionless); d is a fixed shape parameter per candidate, from the dead-band
-    diagnostic (``diagnostics.dead_band``, candidates at 0.8, 1 and 1.25 times its estimate).
+    diagnostic (``diagnostics.dead_band``, candidates at 0.9, 1 and 1.1 times its estimate).
     Block input ``tau``: generalized_force = -c clip(tau_j, -d, d). Admissible: 0.5 <= c <= 1.5
     (``admissible``). Predicting the commanded torque from the motion needs the inverse
     dead-zone (:meth:`commanded_torque`), not a fixed-point iteration (the map has slope c ~ 1
@@ -919,7 +919,7 @@ class DeadZone(Effect):
     @classmethod
     def candidates(cls, n_joints, diagnostics=None, **context):
         return [cls(joint=d["joint"], threshold=round(float(d["threshold"]) * k, 6))
-                for d in diagnostics or [] if d.get("test") == "dead_band" for k in (0.8, 1.0, 1.25)]
+                for d in diagnostics or [] if d.get("test") == "dead_band" for k in (0.9, 1.0, 1.1)]
 
 
 class FrictionDrift(TimeEffect):
