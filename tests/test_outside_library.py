@@ -302,3 +302,18 @@ def test_selection_given_the_diagnostic_candidates_names_the_outside_effect(case
     assert np.all(after <= before * 1.01), (before, after)
     j = truth["joint"]
     assert after[j] <= 0.5 * before[j], (before, after)
+
+
+def test_admissibility_of_the_new_kinds():
+    from robust_drake.identification.effects import admissible
+
+    dz = make_effect("dead_zone", 1, threshold=0.1)
+    assert admissible(dz, {"share": 0.95}) == ""
+    assert "share" in admissible(dz, {"share": 0.2})  # most of the band's torque arrives: no dead-zone
+    dr = make_effect("friction_drift", 0)
+    base = {"viscous": 0.004, "coulomb": 0.02}
+    assert admissible(dr, {"viscous_rate": -0.0002, "coulomb_rate": 0.0}, base, duration=12.0) == ""
+    # b = 0.004 - 0.001 * 12 < 0 at the end of the run: friction cannot feed energy in
+    assert "viscous" in admissible(dr, {"viscous_rate": -0.001, "coulomb_rate": 0.0}, base, duration=12.0)
+    pd = make_effect("periodic_disturbance", 1, frequency=0.05)
+    assert "frequency" in admissible(pd, {"sin": 0.0, "cos": 0.0}, band_hz=(2 / 12.0, 8.0))
