@@ -146,8 +146,17 @@ def spectrum(residual: np.ndarray, dt: float):
     return f, P
 
 
-def analyse(data: IdentData, residual: np.ndarray, eta_min: float = ETA_MIN, alpha: float = ALPHA) -> dict:
-    """All tests; ``unexplained_structure`` and ``where`` (joint, variable, eta2) if flagged."""
+def analyse(data: IdentData, residual: np.ndarray, eta_min: float = ETA_MIN, alpha: float = ALPHA,
+            validate_residual: np.ndarray | None = None) -> dict:
+    """All tests; ``unexplained_structure`` and ``where`` if flagged.
+
+    ``where`` lists first the rows of :func:`diagnostics.diagnose` (``test`` = ``periodic`` with
+    ``frequency_hz``, ``drift`` with the coefficients of the first / last third and their times,
+    ``dead_band`` with the torque range, ``generalization`` when ``validate_residual`` is given),
+    then the state-dependence rows (``test`` = ``state_dependence``: joint, variable, eta2)."""
+    from robust_drake.identification.diagnostics import diagnose
+
+    diag = diagnose(data, residual, validate_residual)
     dep = state_dependence(data, residual)
     white = whiteness(data, residual)
     where = [d for d in dep if d["eta2"] >= eta_min and d["p"] < alpha and not d["variable"].startswith("tau")]
@@ -156,8 +165,10 @@ def analyse(data: IdentData, residual: np.ndarray, eta_min: float = ETA_MIN, alp
     peaks = [float(f[1:][np.argmax(P[1:, j])]) for j in range(residual.shape[1])]
     rms = np.sqrt(np.mean(residual**2, axis=0))
     return {
-        "unexplained_structure": bool(where or coloured),
-        "where": [{"joint": d["joint"], "variable": d["variable"], "eta2": round(d["eta2"], 4)} for d in where[:6]],
+        "unexplained_structure": bool(where or coloured or diag),
+        "where": diag + [{"test": "state_dependence", "joint": d["joint"], "variable": d["variable"],
+                          "eta2": round(d["eta2"], 4)} for d in where[:6]],
+        "diagnostics": diag,
         "coloured": [{"joint": w["joint"], "rho1": round(w["rho1"], 3)} for w in coloured],
         "state_dependence_top": [{k: (round(v, 5) if isinstance(v, float) else v) for k, v in d.items()} for d in dep[:8]],
         "whiteness": white,
