@@ -87,20 +87,68 @@ _DEFAULT = object()
 class ClosedLoopConfig:
     """Everything that defines one closed loop (serialisable except ``effects`` callables).
 
-    ``plant_friction``: ``{"coulomb": [...], "viscous": [...]}`` for the plant-side
-    Coulomb + viscous block, None for a frictionless plant; the default is the D2R2 values
-    for the D2R2 and None for other robots. ``friction_compensation`` adds the fixed JS
-    eqs. 89-90 term (``compensation_params={"k_hat": [...]}``). ``encoder_resolution``
-    [rad] quantises the measured position (None: exact); default theta_m of the D2R2 for
-    the D2R2, None otherwise. ``torque_limit`` [N m] saturates the command (None: no
-    limit); default 31.2 N m for the D2R2. ``true_theta`` sets the D2R2 plant's eq. 14
-    parameters (Monte Carlo "true" arm). ``effects`` are extra plant-side blocks: each a
-    registry name with params ``(name, {params})`` or a callable ``f(ctx) -> LeafSystem``
-    with input ``state`` (and optionally ``tau``) and output ``generalized_force``.
-    ``plant_setup`` callables ``f(plant, plant_context)`` change the plant's parameters
-    before each run. ``feedforward`` callables ``f(q_meas, v_hat) -> torques`` are added to the
-    controller's command within each tick (model-based compensation; the controller must be a
-    :class:`~robust_drake.systems.controllers.base.DiscreteController`).
+    Defaults marked "robot" are filled in by :meth:`resolved` from the robot: the D2R2 values
+    for the D2R2, none for other arms.
+
+    Parameters
+    ----------
+    robot : str
+        Robot name (URDF shipped in ``robust_drake/robots``) or a URDF path (default ``"d2r2"``).
+    load : str
+        Load variant, ``"none"`` or ``"max"`` (JS section 9).
+    controller : str
+        Controller registry name: ``"pd"``, ``"sp1"``, ``"sp2"``, ``"zc"``, ``"lgplus"``, ...
+    controller_params : dict
+        Controller parameters (gains, epsilons, ...), by the controller's documented names.
+    trajectory : str
+        Reference: ``"cpt"`` (JS eq. 48), ``"circle"`` (JS section 10), ``"refmodel"``,
+        ``"sine"``, ``"step"``, ``"line"``.
+    trajectory_params : dict
+        Reference parameters.
+    rate : float
+        Controller and observer sample rate [Hz] (JS: 2500).
+    observer : str
+        Velocity estimator (default ``"averaging"``, JS eqs. 64/66).
+    observer_params : dict
+        Estimator parameters.
+    plant_friction : dict or None
+        ``{"coulomb": [N m], "viscous": [N m s/rad]}`` per joint for the plant-side friction
+        block; None for a frictionless plant (default: robot).
+    friction_compensation : bool
+        Add the fixed compensation of JS eqs. 89-90 to the command.
+    compensation_params : dict
+        ``{"k_hat": [...]}`` for that compensation.
+    encoder_resolution : float or None
+        Quantum of the measured position [rad] (None: exact; default: robot, theta_m for the
+        D2R2).
+    torque_limit : list of float or None
+        Saturation of the command [N m] per joint (None: none; default: robot, 31.2 N m on the
+        D2R2).
+    duration : float or None
+        Simulated time [s] (None: the reference's).
+    metrics_skip : float
+        Ignore the first ``metrics_skip`` s in the error criteria [s].
+    metrics_dt : float or None
+        Summation grid of the |error_n| criteria [s] (JS eqs. 55, 58); None: every sample.
+    true_theta : list of float or None
+        D2R2 plant parameters of JS eq. 14 (the Monte Carlo "true" arm).
+    initial_q : list of float or None
+        Initial joint angles [rad] (None: the reference's start, at rest).
+    effects : list
+        Extra plant-side blocks: registry ``(name, {params})`` pairs or callables
+        ``f(ctx) -> LeafSystem`` with input ``state`` (optionally ``tau``) and output
+        ``generalized_force``.
+    plant_setup : list
+        Callables ``f(plant, plant_context)`` changing the plant's parameters before each run.
+    feedforward : list
+        Callables ``f(q_meas, v_hat) -> torques`` [N m] added to the controller's command within
+        each tick (the controller must be a
+        :class:`~robust_drake.systems.controllers.base.DiscreteController`).
+    divergence_error : float or None
+        Joint error [rad] beyond which a run stops as diverged (None: never).
+    flexibility : FlexibilityConfig, dict or None
+        Two-mass drives and structural modes (:mod:`robust_drake.systems.flexibility`);
+        None: rigid arm.
     """
 
     robot: str = "d2r2"
