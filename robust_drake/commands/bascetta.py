@@ -29,26 +29,33 @@ def register(sub):
                    help="boundary-layer width of z/||z|| in error units (default 0.01)")
     p.add_argument("--mass-scale", type=float, default=1.2,
                    help="factor on both link masses in the model used for n_hat (default 1.2)")
-    add_output_flags(p, plot="DIR")
+    add_output_flags(p, plot="DIR", files="fig1_joint_trajectory.png, fig2_cartesian_trajectory.png, "
+                                          "fig3_w_base.png, fig4_w_elbow.png, ...")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
     from robust_drake.experiments.bascetta import plot_case_study, run_case_study
 
+    from robust_drake.cli import plot_dir
+    from robust_drake.log import get_logger
+
     gains = _gains(args.gains)
+    plots = plot_dir(args)
     if not args.mass_scale > 0:
         raise RobustDrakeError("--mass-scale must be positive")
     pert = {"link1": args.mass_scale, "link2": args.mass_scale}
-    keep = bool(args.plot)
+    keep = plots is not None
+    get_logger().info(f"bascetta: Case A and Case B with K_P, K_D = {gains[0]:g}, {gains[1]:g} ...")
     study = run_case_study(gains, duration=args.duration, boundary=args.boundary, perturbation=pert,
                            keep_results=keep)
     paths = []
-    if args.plot:
+    if plots is not None:
+        get_logger().info("bascetta: second gain set for the figures ...")
         other_gains = (100.0, 10.0) if gains != (100.0, 10.0) else (25.0, 5.0)
         other = run_case_study(other_gains, duration=args.duration, boundary=args.boundary, perturbation=pert,
                                lemma_check=False, keep_results=True)
-        paths = plot_case_study(study, args.plot, other)
+        paths = plot_case_study(study, plots, other)
         study.pop("_results", None)
         study["plots"] = paths
     diverged = study["A"]["diverged"] or study["B"]["diverged"]

@@ -10,18 +10,27 @@ from robust_drake.cli import add_output_flags, format_table, print_json
 
 
 def register(subparsers):
-    p = subparsers.add_parser("calafiore", help="Calafiore & Indri section 5.2: nominal vs ellipsoid-robust control")
+    p = subparsers.add_parser(
+        "calafiore", help="Calafiore & Indri section 5.2: nominal vs ellipsoid-robust control",
+        description="Control the IMI SCARA with the nominal computed-torque law (CI eq. 6) and the robust "
+                    "law built on the confidence ellipsoid (CI eq. 15), each on 'true' arms drawn on the "
+                    "ellipsoid's boundary, and print peak, RMS and settling time of the tracking errors. "
+                    "--plot DIR writes analogs of CI figures 4-6 and the torques.")
     p.add_argument("--ellipsoid", default=None, help="JSON with theta0 and P (default: the published section 5.1 values)")
-    p.add_argument("--n-true", type=int, default=3, help="true parameter vectors drawn on the ellipsoid boundary")
-    p.add_argument("--duration", type=float, default=None, help="s (default 3, 1 with ROBUST_DRAKE_SHORT=1)")
-    p.add_argument("--epsilon", type=float, default=1.0)
-    p.add_argument("--seed", type=int, default=0)
-    add_output_flags(p, plot="DIR")
+    p.add_argument("--n-true", type=int, default=3, help="true parameter vectors drawn on the ellipsoid boundary (default 3)")
+    p.add_argument("--duration", type=float, default=None,
+                   help="simulated time [s] (default 3, 1 with ROBUST_DRAKE_SHORT=1)")
+    p.add_argument("--epsilon", type=float, default=1.0,
+                   help="epsilon of CI eq. 15, u = -E w / max(||w||, epsilon): smooths the robust term near w = 0 "
+                        "(default 1.0)")
+    p.add_argument("--seed", type=int, default=0, help="random seed of the drawn true parameters (default 0)")
+    add_output_flags(p, plot="DIR", files="fig4_reference.png, fig5_nominal_errors.png, "
+                                          "fig6_robust_errors.png, torques.png")
     p.set_defaults(func=run)
 
 
 def plot_study(out, directory):
-    """Analogs of CI figs. 3-6: reference, nominal and robust tracking errors, torques."""
+    """Analogs of CI figs. 4-6: reference, nominal and robust tracking errors, torques; returns the paths."""
     from robust_drake.plotting import subplots
 
     os.makedirs(directory, exist_ok=True)
@@ -43,6 +52,8 @@ def plot_study(out, directory):
     ax.set(xlabel="t [s]", ylabel="u [N m]", title="commanded torques")
     ax.legend()
     fig.savefig(os.path.join(directory, "torques.png"))
+    return [os.path.join(str(directory), f) for f in
+            ("fig4_reference.png", "fig5_nominal_errors.png", "fig6_robust_errors.png", "torques.png")]
 
 
 def run(args) -> int:
@@ -53,9 +64,14 @@ def run(args) -> int:
     if args.ellipsoid:
         ell = Ellipsoid.load(args.ellipsoid)
         theta0, P = ell.theta0, ell.P
+    from robust_drake.cli import plot_dir
+    from robust_drake.log import get_logger
+
+    plots = plot_dir(args)
+    get_logger().info(f"calafiore: nominal and robust control on {args.n_true} drawn true arm(s) ...")
     out = run_study(theta0, P, n_true=args.n_true, duration=args.duration, seed=args.seed, epsilon=args.epsilon)
-    if args.plot:
-        plot_study(out, args.plot)
+    if plots is not None:
+        out["plots"] = plot_study(out, plots)
     for r in out["runs"]:
         r.pop("_logs", None)
     if args.json:

@@ -21,20 +21,23 @@ def register(sub):
     p.add_argument("--duration", type=float, default=None, help="simulated time [s] (default: the trajectory's)")
     p.add_argument("--skip", type=non_negative(float, "--skip"), default=None,
                    help="ignore the first SKIP s in the metrics (default 0; 1 s for the circle as in JS section 10)")
-    p.add_argument("--friction-compensation", action="store_true", help="add the fixed compensation of JS eqs. 89-90")
+    p.add_argument("--friction-compensation", action="store_true",
+                   help="add the fixed compensation of JS eqs. 89-90 (default off, as in compare's tables 2-3; "
+                        "sweep-rate turns it on)")
     m = p.add_mutually_exclusive_group()
     m.add_argument("--rigid", action="store_true", help="rigid arm (default)")
     m.add_argument("--flexible", action="store_true",
                    help="D2R2 only: two-mass drives, motor-side encoders, link-2 bending (BUILD_NOTES 'Flexible D2R2')")
-    add_output_flags(p, plot="FILE")
+    add_output_flags(p, plot="DIR", files="tracking.png")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
     from robust_drake.diagram import ClosedLoopConfig, build_closed_loop
 
-    if args.plot is not None and not args.plot.strip():
-        raise RobustDrakeError("--plot is empty; give a file or folder path")
+    from robust_drake.cli import plot_dir
+
+    plots = plot_dir(args)
     if not args.rate > 0:
         raise RobustDrakeError(f"--rate must be positive (got {args.rate})")
     flex = None
@@ -50,11 +53,16 @@ def run(args) -> int:
                            duration=args.duration, metrics_skip=skip,
                            friction_compensation=args.friction_compensation, flexibility=flex)
     loop = build_closed_loop(cfg)
+    from robust_drake.log import get_logger
+
+    get_logger().info(f"simulating {args.controller} on {args.robot}, {args.trajectory}, {args.rate:g} Hz ...")
     res = loop.simulate()
-    if args.plot:
+    plot = None
+    if plots is not None:
         from robust_drake.plotting import plot_tracking
 
-        plot_tracking(res, args.plot, title=f"{args.controller} / {args.trajectory} / load {args.load}")
+        plot = str(plot_tracking(res, plots / "tracking.png",
+                                 title=f"{args.controller} / {args.trajectory} / load {args.load}"))
     out = res.to_dict()
     out.update(robot=args.robot, load=args.load, controller=args.controller, trajectory=args.trajectory,
                rate=args.rate, model="flexible" if args.flexible else "rigid")
@@ -62,16 +70,19 @@ def run(args) -> int:
     unc = getattr(loop.controller, "uncertainty", None)
     rho = getattr(loop.controller, "rho", None)
     out.update(uncertainty=unc, rho=rho if unc is not None else None)
+    if plot:
+        out["plots"] = [plot]
     if args.json:
         print_json(out)
     else:
         print(f"{args.controller} on {args.robot}{' (flexible)' if args.flexible else ''} (load {args.load}), {args.trajectory}, {args.rate:g} Hz, "
+              f"friction compensation {'on' if args.friction_compensation else 'off'}, "
               f"{res.sim_seconds:.2f} s simulated in {res.wall_seconds:.2f} s"
               + (f"  ** DIVERGED: {res.divergence_reason} **" if res.diverged else ""))
         print(format_table([[out[k] for k in METRIC_KEYS]],
                            ["|error1| rad", "maxerr1 rad", "|error2| rad", "maxerr2 rad", "|error_task| m", "maxerr_task m"]))
         if unc is not None:
             print(f"uncertainty: {unc.get('kind')} ({unc.get('source', '')}), rho = {rho}")
-        if args.plot:
-            print(f"plot: {args.plot}")
+        if plot:
+            print(f"plot: {plot}")
     return 1 if res.diverged else 0
