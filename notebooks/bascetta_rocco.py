@@ -86,3 +86,4 @@ axes[0].legend()
 out = os.environ.get("ROBUST_DRAKE_NOTEBOOK_OUT")
 if out:
     fig.savefig(os.path.join(out, "bascetta_rocco.png"))
+plt.show()

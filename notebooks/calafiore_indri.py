@@ -58,6 +58,7 @@ for k, (n, out) in enumerate(results.items()):
 ax.set_xticks(range(8), names, rotation=45)
 ax.set_ylabel("theta0 +- sqrt(P_ii)")
 ax.legend()
+plt.show()
 
 # %% [markdown]
 # ## Nominal vs robust control, published ellipsoid (section 5.1) and our own
@@ -78,4 +79,6 @@ fig, axes = plt.subplots(1, 2, figsize=(10, 3.5), sharey=True)
 for ax, law in zip(axes, ("nominal", "robust")):
     ax.plot(logs[law]["t"], logs[law]["e"])
     ax.set(title=f"{law} control (CI fig. {5 if law == 'nominal' else 6})", xlabel="t [s]")
+    ax.legend(["joint 1", "joint 2"], loc="upper right")
 axes[0].set_ylabel("tracking error [rad]")
+plt.show()

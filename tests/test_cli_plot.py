@@ -117,3 +117,33 @@ def test_plot_dir_writes_the_named_files(name, tmp_path, capsys):
         p = plot_dir / f
         assert p.is_file() and p.stat().st_size > 5000, f"{name}: {f} missing or empty"
         assert p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", f
+
+
+def test_diagram_source_and_a_clear_message_without_graphviz(tmp_path, capsys, monkeypatch):
+    dot = tmp_path / "loop.dot"
+    assert main(["simulate", "--duration", "0.05", "--diagram", str(dot)]) == 0
+    text = dot.read_text()
+    # the closed loop's blocks are in the picture
+    assert text.startswith("digraph") and "plant" in text.lower() and "controller" in text.lower()
+    import shutil
+
+    monkeypatch.setattr(shutil, "which", lambda name: None)
+    assert main(["simulate", "--duration", "0.05", "--diagram", str(tmp_path / "loop.svg")]) == 2
+    err = capsys.readouterr().err
+    assert "error: rendering loop.svg needs Graphviz's 'dot'" in err and not (tmp_path / "loop.svg").exists()
+
+
+def test_meshcat_view_records_the_run():
+    """Opt-in Meshcat (localhost, ~0.05 s to start): the recorded animation spans the run."""
+    import robust_drake as rd
+    from robust_drake.viz import add_meshcat, publish_recording
+
+    loop = rd.build_closed_loop(rd.ClosedLoopConfig(duration=0.1))
+    meshcat, vis = add_meshcat(loop)
+    assert not meshcat.HasPath("/drake/visualizer/d2r2")
+    res = loop.simulate()
+    publish_recording(vis)
+    assert meshcat.web_url().startswith("http://localhost") and not res.diverged
+    assert meshcat.HasPath("/drake/visualizer/d2r2")  # the arm's geometry reached the viewer
+    with pytest.raises(Exception, match="before the loop's first simulate"):
+        add_meshcat(loop, meshcat)

@@ -28,6 +28,12 @@ def register(sub):
     m.add_argument("--rigid", action="store_true", help="rigid arm (default)")
     m.add_argument("--flexible", action="store_true",
                    help="D2R2 only: two-mass drives, motor-side encoders, link-2 bending (BUILD_NOTES 'Flexible D2R2')")
+    p.add_argument("--diagram", metavar="FILE", default=None,
+                   help="write the closed loop's block diagram: FILE.svg/.png/.pdf (needs Graphviz's dot) "
+                        "or FILE.dot (the source)")
+    p.add_argument("--meshcat", action="store_true",
+                   help="show the arm in Meshcat (pydrake's browser viewer on localhost; the run is "
+                        "recorded for replay; on a terminal the command waits for Enter before exiting)")
     add_output_flags(p, plot="DIR", files="tracking.png")
     p.set_defaults(func=run)
 
@@ -53,10 +59,27 @@ def run(args) -> int:
                            duration=args.duration, metrics_skip=skip,
                            friction_compensation=args.friction_compensation, flexibility=flex)
     loop = build_closed_loop(cfg)
+    import sys
+
     from robust_drake.log import get_logger
+
+    vis = None
+    if args.meshcat:
+        from robust_drake.viz import add_meshcat
+
+        meshcat, vis = add_meshcat(loop)
+        print(f"meshcat: {meshcat.web_url()}", file=sys.stderr)
 
     get_logger().info(f"simulating {args.controller} on {args.robot}, {args.trajectory}, {args.rate:g} Hz ...")
     res = loop.simulate()
+    if vis is not None:
+        from robust_drake.viz import publish_recording
+
+        publish_recording(vis)
+    if args.diagram:
+        from robust_drake.viz import render_diagram
+
+        print(f"diagram: {render_diagram(loop, args.diagram)}", file=sys.stderr)
     plot = None
     if plots is not None:
         from robust_drake.plotting import plot_tracking
@@ -85,4 +108,6 @@ def run(args) -> int:
             print(f"uncertainty: {unc.get('kind')} ({unc.get('source', '')}), rho = {rho}")
         if plot:
             print(f"plot: {plot}")
+    if vis is not None and sys.stdin.isatty():
+        input("Meshcat: replay the recording in the browser; press Enter to stop the server ")
     return 1 if res.diverged else 0
