@@ -39,6 +39,8 @@ _LAZY = {
     "run_batch": "robust_drake.api",
     "run_montecarlo": "robust_drake.api",
     "ClosedLoopConfig": "robust_drake.diagram",
+    "render_diagram": "robust_drake.viz",
+    "add_meshcat": "robust_drake.viz",
     "set_log_level": "robust_drake.log",
     "get_logger": "robust_drake.log",
 }
