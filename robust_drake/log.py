@@ -102,3 +102,30 @@ class _StderrHandler(logging.StreamHandler):
     def emit(self, record):
         self.stream = self.target or sys.stderr
         super().emit(record)
+
+
+class slow_step:
+    """Context manager: log ``message`` (INFO) only if the block is still running after
+    ``after`` seconds, so quick runs and input errors found at once print nothing extra.
+
+    Parameters
+    ----------
+    message : str
+        What the block is doing ("simulating SP1 on the D2R2 ...").
+    after : float
+        Delay [s] before the message is logged.
+    """
+
+    def __init__(self, message: str, after: float = 1.0):
+        self.message, self.after, self._timer = message, after, None
+
+    def __enter__(self) -> "slow_step":
+        import threading
+
+        self._timer = threading.Timer(self.after, logger.info, args=("%s", self.message))
+        self._timer.daemon = True
+        self._timer.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._timer.cancel()

@@ -95,3 +95,23 @@ def test_import_is_lazy():
             "if m in sys.modules}; rd.ClosedLoopConfig; print(sorted(before), 'pydrake' in sys.modules)")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert r.stdout.split() == ["[]", "True"]
+
+
+def test_progress_defaults_to_the_logger_and_slow_step_stays_quiet_when_fast(caplog):
+    import logging
+    import time
+
+    from robust_drake.log import progress_callback, slow_step
+
+    seen = []
+    assert progress_callback(seen.append) is seen.append  # an explicit callback is used as given
+    with caplog.at_level(logging.INFO, logger="robust_drake"):
+        progress_callback(None)("step 1 of 3")
+        with slow_step("never shown", after=60.0):
+            pass
+        with slow_step("still running", after=0.0):
+            deadline = time.monotonic() + 5.0
+            while "still running" not in caplog.text and time.monotonic() < deadline:
+                time.sleep(0.01)
+    msgs = [r.getMessage() for r in caplog.records if r.name == "robust_drake"]
+    assert msgs == ["step 1 of 3", "still running"]

@@ -38,7 +38,7 @@ def run(args) -> int:
     from robust_drake.experiments.bascetta import plot_case_study, run_case_study
 
     from robust_drake.cli import plot_dir
-    from robust_drake.log import get_logger
+    from robust_drake.log import slow_step
 
     gains = _gains(args.gains)
     plots = plot_dir(args)
@@ -46,15 +46,15 @@ def run(args) -> int:
         raise RobustDrakeError("--mass-scale must be positive")
     pert = {"link1": args.mass_scale, "link2": args.mass_scale}
     keep = plots is not None
-    get_logger().info(f"bascetta: Case A and Case B with K_P, K_D = {gains[0]:g}, {gains[1]:g} ...")
-    study = run_case_study(gains, duration=args.duration, boundary=args.boundary, perturbation=pert,
-                           keep_results=keep)
+    with slow_step(f"bascetta: Case A and Case B with K_P, K_D = {gains[0]:g}, {gains[1]:g} ..."):
+        study = run_case_study(gains, duration=args.duration, boundary=args.boundary, perturbation=pert,
+                               keep_results=keep)
     paths = []
     if plots is not None:
-        get_logger().info("bascetta: second gain set for the figures ...")
         other_gains = (100.0, 10.0) if gains != (100.0, 10.0) else (25.0, 5.0)
-        other = run_case_study(other_gains, duration=args.duration, boundary=args.boundary, perturbation=pert,
-                               lemma_check=False, keep_results=True)
+        with slow_step(f"bascetta: K_P, K_D = {other_gains[0]:g}, {other_gains[1]:g} for the figures ..."):
+            other = run_case_study(other_gains, duration=args.duration, boundary=args.boundary,
+                                   perturbation=pert, lemma_check=False, keep_results=True)
         paths = plot_case_study(study, plots, other)
         study.pop("_results", None)
         study["plots"] = paths

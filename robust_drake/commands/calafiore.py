@@ -65,11 +65,12 @@ def run(args) -> int:
         ell = Ellipsoid.load(args.ellipsoid)
         theta0, P = ell.theta0, ell.P
     from robust_drake.cli import plot_dir
-    from robust_drake.log import get_logger
+    from robust_drake.log import slow_step
 
     plots = plot_dir(args)
-    get_logger().info(f"calafiore: nominal and robust control on {args.n_true} drawn true arm(s) ...")
-    out = run_study(theta0, P, n_true=args.n_true, duration=args.duration, seed=args.seed, epsilon=args.epsilon)
+    with slow_step(f"calafiore: nominal and robust control on {args.n_true} drawn true arm(s) ..."):
+        out = run_study(theta0, P, n_true=args.n_true, duration=args.duration, seed=args.seed,
+                        epsilon=args.epsilon)
     if plots is not None:
         out["plots"] = plot_study(out, plots)
     for r in out["runs"]:

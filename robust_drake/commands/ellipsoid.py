@@ -94,12 +94,12 @@ def run(args) -> int:
         check_save_path(args.save)
     bounds = parse_bounds(args.bounds) if args.bounds else None
     data = _read_csv(args.data) if args.data else None
-    from robust_drake.log import get_logger
+    from robust_drake.log import slow_step
 
-    get_logger().info(f"ellipsoid: {args.formulation} formulation, {args.backend}/{args.solver}, "
-                      f"certificate with {args.draws} draws ...")
-    out = run_ellipsoid_experiment(args.samples, args.solver, args.seed, args.backend, args.formulation, args.draws,
-                                   bounds=bounds, data=data)
+    with slow_step(f"ellipsoid: {args.formulation} formulation, {args.backend}/{args.solver}, "
+                   f"certificate with {args.draws} draws ..."):
+        out = run_ellipsoid_experiment(args.samples, args.solver, args.seed, args.backend, args.formulation,
+                                       args.draws, bounds=bounds, data=data)
     res = out.pop("_result")
     if args.save:
         res.ellipsoid.save(args.save)

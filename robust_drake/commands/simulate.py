@@ -61,7 +61,7 @@ def run(args) -> int:
     loop = build_closed_loop(cfg)
     import sys
 
-    from robust_drake.log import get_logger
+    from robust_drake.log import slow_step
 
     vis = None
     if args.meshcat:
@@ -70,8 +70,8 @@ def run(args) -> int:
         meshcat, vis = add_meshcat(loop)
         print(f"meshcat: {meshcat.web_url()}", file=sys.stderr)
 
-    get_logger().info(f"simulating {args.controller} on {args.robot}, {args.trajectory}, {args.rate:g} Hz ...")
-    res = loop.simulate()
+    with slow_step(f"simulating {args.controller} on {args.robot}, {args.trajectory}, {args.rate:g} Hz ..."):
+        res = loop.simulate()
     if vis is not None:
         from robust_drake.viz import publish_recording
 
