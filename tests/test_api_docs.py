@@ -104,7 +104,8 @@ def test_progress_defaults_to_the_logger_and_slow_step_stays_quiet_when_fast(cap
     from robust_drake.log import progress_callback, slow_step
 
     seen = []
-    assert progress_callback(seen.append) is seen.append  # an explicit callback is used as given
+    sink = seen.append
+    assert progress_callback(sink) is sink  # an explicit callback is used as given
     with caplog.at_level(logging.INFO, logger="robust_drake"):
         progress_callback(None)("step 1 of 3")
         with slow_step("never shown", after=60.0):
