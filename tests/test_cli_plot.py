@@ -84,7 +84,7 @@ def _repair_inputs(tmp_path):
 
 # Each plotting command's cheapest form, and the files it must write into --plot DIR.
 CASES = {
-    "simulate": (["simulate", "--duration", "0.2"], ["tracking.png"]),
+    "simulate": (["simulate", "--duration", "0.2"], ["tracking.png", "task_path.png"]),
     "sweep-rate": (["sweep-rate", "--controllers", "sp1", "--rates", "500", "--duration", "0.2",
                     "--workers", "1"], ["sweep_rate.png"]),
     "compare": (["compare", "--table", "2", "--controllers", "sp1", "--duration", "0.2", "--workers", "1"],

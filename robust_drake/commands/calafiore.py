@@ -30,30 +30,48 @@ def register(subparsers):
 
 
 def plot_study(out, directory):
-    """Analogs of CI figs. 4-6: reference, nominal and robust tracking errors, torques; returns the paths."""
+    """Analogs of CI figs. 4-6: reference, nominal and robust tracking errors (same y-scale, so
+    the two laws compare at a glance), torques; returns the paths written."""
+    import numpy as np
+
     from robust_drake.plotting import subplots
 
     os.makedirs(directory, exist_ok=True)
     logs = out["runs"][0]["_logs"]
     t = logs["nominal"]["t"]
-    fig, ax = subplots()
-    ax.plot(t, logs["nominal"]["q_d"])
+    joints = ["joint 1", "joint 2"]
+    legend = dict(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
+    paths = [os.path.join(str(directory), f) for f in
+             ("fig4_reference.png", "fig5_nominal_errors.png", "fig6_robust_errors.png", "torques.png")]
+    fig, ax = subplots(figsize=(7.5, 3.5))
+    ax.plot(t, logs["nominal"]["q_d"], label=joints)
     ax.set(xlabel="t [s]", ylabel="q_d [rad]", title="joint reference (CI fig. 4)")
-    fig.savefig(os.path.join(directory, "fig4_reference.png"))
-    for law, num in (("nominal", 5), ("robust", 6)):
-        fig, ax = subplots()
-        ax.plot(logs[law]["t"], logs[law]["e"])
-        ax.set(xlabel="t [s]", ylabel="e [rad]", title=f"tracking errors, {law} control (CI fig. {num})")
-        ax.legend(["joint 1", "joint 2"])
-        fig.savefig(os.path.join(directory, f"fig{num}_{law}_errors.png"))
-    fig, ax = subplots()
-    for law in ("nominal", "robust"):
-        ax.plot(logs[law]["t"], logs[law]["u"], label=[f"{law} 1", f"{law} 2"])
-    ax.set(xlabel="t [s]", ylabel="u [N m]", title="commanded torques")
-    ax.legend()
-    fig.savefig(os.path.join(directory, "torques.png"))
-    return [os.path.join(str(directory), f) for f in
-            ("fig4_reference.png", "fig5_nominal_errors.png", "fig6_robust_errors.png", "torques.png")]
+    ax.grid(alpha=0.3)
+    ax.legend(**legend)
+    fig.tight_layout()
+    fig.savefig(paths[0])
+    e_max = max(float(np.max(np.abs(logs[law]["e"]))) for law in ("nominal", "robust")) * 1.05 or 1.0
+    for law, num, path in (("nominal", 5, paths[1]), ("robust", 6, paths[2])):
+        fig, ax = subplots(figsize=(7.5, 3.5))
+        ax.plot(logs[law]["t"], logs[law]["e"], label=joints)
+        ax.set(xlabel="t [s]", ylabel="e = q - q_d [rad]", ylim=(-e_max, e_max),
+               title=f"tracking errors, {law} control (CI fig. {num}; same scale as fig. {11 - num})")
+        ax.grid(alpha=0.3)
+        ax.legend(**legend)
+        fig.tight_layout()
+        fig.savefig(path)
+    fig, axes = subplots(2, 1, figsize=(7.5, 5), sharex=True)
+    for j, ax in enumerate(axes):
+        for law, style in (("nominal", "-"), ("robust", "--")):
+            ax.plot(logs[law]["t"], np.asarray(logs[law]["u"])[:, j], style, lw=0.9, label=f"{law} law")
+        ax.set_ylabel(f"u{j + 1} [N m]")
+        ax.grid(alpha=0.3)
+    axes[0].legend(**legend)
+    axes[0].set_title("commanded torques, first drawn true arm")
+    axes[-1].set_xlabel("t [s]")
+    fig.tight_layout()
+    fig.savefig(paths[3])
+    return paths
 
 
 def run(args) -> int:

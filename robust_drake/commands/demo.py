@@ -47,7 +47,9 @@ def _run_one(item):
     controller, load, out_dir, duration = item
     res = simulate(ClosedLoopConfig(controller=controller, load=load, trajectory="cpt", duration=duration))
     plot = pathlib.Path(out_dir) / f"cpt_{controller}_{load}.png"
-    plot_tracking(res, plot, title=f"{controller.upper()}, CPT, load {load} (cf. JS figs. 4-5)")
+    full = duration is None  # a shortened run is not the paper's figure
+    plot_tracking(res, plot, title=f"{controller.upper()}, CPT ({res.sim_seconds:.3g} s), load {load}, no friction "
+                                   "compensation" + (" (cf. JS figs. 4-5)" if full else ", shortened run"))
     row = res.to_dict()
     row.update(controller=controller, load=load, plot=str(plot))
     return row

@@ -34,7 +34,7 @@ def register(sub):
     p.add_argument("--meshcat", action="store_true",
                    help="show the arm in Meshcat (pydrake's browser viewer on localhost; the run is "
                         "recorded for replay; on a terminal the command waits for Enter before exiting)")
-    add_output_flags(p, plot="DIR", files="tracking.png")
+    add_output_flags(p, plot="DIR", files="tracking.png, task_path.png (planar 2-link arms)")
     p.set_defaults(func=run)
 
 
@@ -82,10 +82,11 @@ def run(args) -> int:
         print(f"diagram: {render_diagram(loop, args.diagram)}", file=sys.stderr)
     plot = None
     if plots is not None:
-        from robust_drake.plotting import plot_tracking
+        from robust_drake.plotting import plot_tracking, task_path_figure
 
-        plot = str(plot_tracking(res, plots / "tracking.png",
-                                 title=f"{args.controller} / {args.trajectory} / load {args.load}"))
+        plot = str(plot_tracking(res, plots / "tracking.png"))
+        if res.link_lengths:  # planar 2-link arm: the end effector's path too
+            task_path_figure(res).savefig(plots / "task_path.png", dpi=110)
     out = res.to_dict()
     out.update(robot=args.robot, load=args.load, controller=args.controller, trajectory=args.trajectory,
                rate=args.rate, model="flexible" if args.flexible else "rigid")
@@ -94,7 +95,7 @@ def run(args) -> int:
     rho = getattr(loop.controller, "rho", None)
     out.update(uncertainty=unc, rho=rho if unc is not None else None)
     if plot:
-        out["plots"] = [plot]
+        out["plots"] = [plot] + ([str(plots / "task_path.png")] if res.link_lengths else [])
     if args.json:
         print_json(out)
     else:
