@@ -74,6 +74,16 @@ ax[2].plot(result.t, result.tau); ax[2].set_ylabel("tau [N m]"); ax[2].set_xlabe
 plt.show()
 
 # %% [markdown]
+# The package's own figures are matplotlib `Figure` objects (shown inline, saved with
+# `fig.savefig`): errors, torques with the saturation limit, and the end effector's path.
+
+# %%
+rd.tracking_figure(result)
+
+# %%
+rd.task_path_figure(result)
+
+# %% [markdown]
 # Compare with the PD baseline with the same K, Lambda.
 
 # %%

@@ -39,6 +39,8 @@ _LAZY = {
     "run_batch": "robust_drake.api",
     "run_montecarlo": "robust_drake.api",
     "ClosedLoopConfig": "robust_drake.diagram",
+    "tracking_figure": "robust_drake.plotting",
+    "task_path_figure": "robust_drake.plotting",
     "render_diagram": "robust_drake.viz",
     "add_meshcat": "robust_drake.viz",
     "set_log_level": "robust_drake.log",

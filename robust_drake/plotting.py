@@ -10,7 +10,14 @@ from __future__ import annotations
 
 import pathlib
 
+from typing import TYPE_CHECKING
+
 import numpy as np
+
+if TYPE_CHECKING:  # pragma: no cover
+    from matplotlib.figure import Figure
+
+    from robust_drake.diagram import SimulationResult
 
 
 def subplots(nrows: int = 1, ncols: int = 1, *, figsize=None, **kwargs):
@@ -38,7 +45,7 @@ def _describe(result) -> str:
             f"{result.sim_seconds:.3g} s, friction compensation {fc}")
 
 
-def tracking_figure(result, title: str | None = None):
+def tracking_figure(result: "SimulationResult", title: str | None = None) -> "Figure":
     """Tracking errors per joint [rad], task-space error [mm] and torques [N m] against time,
     the layout of JS figures 4-11, as a matplotlib ``Figure``.
 
@@ -103,7 +110,7 @@ def tracking_figure(result, title: str | None = None):
     return fig
 
 
-def task_path_figure(result, title: str | None = None):
+def task_path_figure(result: "SimulationResult", title: str | None = None) -> "Figure":
     """The end effector's path in the plane, desired and actual [m] (planar 2-link arms).
 
     Parameters
@@ -138,7 +145,7 @@ def task_path_figure(result, title: str | None = None):
     return fig
 
 
-def plot_tracking(result, path, title: str | None = None) -> pathlib.Path:
+def plot_tracking(result: "SimulationResult", path: "str | pathlib.Path", title: str | None = None) -> pathlib.Path:
     """Write :func:`tracking_figure` to ``path`` (PNG; the folder is created).
 
     Parameters
