@@ -344,10 +344,12 @@ def boxplot(df, path, metric: str = "maxerr_task", title: str | None = None,
         ax.set_xticks(range(1, len(ctrls) + 1), ctrls)
         for i, v in enumerate(groups, start=1):
             if len(v):
-                ax.plot([i], [v.max()], "rv", ms=6)
+                ax.plot([i], [v.max()], "rv", ms=6, label="worst draw" if i == 1 else None)
         unit = "m" if m.endswith("task") else "rad"
         ax.set_ylabel(f"{m} [{unit}]")
         ax.grid(True, axis="y", alpha=0.3)
+        ax.set_title(f"{m} (box 25-75 %, whiskers 5-95 %)", fontsize=8)
+    axes[0][-1].legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
     fig.suptitle(title or "Monte Carlo per controller (whiskers 5-95 %, red = worst draw)")
     fig.tight_layout()
     pathlib.Path(path).parent.mkdir(parents=True, exist_ok=True)

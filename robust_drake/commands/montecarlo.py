@@ -107,7 +107,7 @@ def run(args) -> int:
                         spec={"montecarlo": vars_for_spec(args)})
     table = percentile_table(df, metric=args.metric)
     boxplot(df, plot, metric=args.metric,
-            title=f"{args.robot}: {args.metric} over {len(thetas)} draws")
+            title=f"{args.robot}, {args.trajectory}: {len(thetas)} draws of the {set_desc.split(' (')[0]}, ok runs")
     if args.json:
         print_json({
             "robot": args.robot, "draws": int(len(thetas)), "rejected": int(rejected),
