@@ -43,7 +43,7 @@ def test_plot_option_is_a_folder_everywhere():
     sub = _subparsers(build_parser())
     plotting = {name: next(a for a in p._actions if "--plot" in a.option_strings)
                 for name, p in sub.choices.items() if any("--plot" in a.option_strings for a in p._actions)}
-    assert set(plotting) >= {"simulate", "bascetta", "montecarlo", "compare", "sweep-rate", "calafiore", "repair"}
+    assert set(plotting) >= {"simulate", "demo", "bascetta", "montecarlo", "compare", "sweep-rate", "calafiore", "repair"}
     for name, action in plotting.items():
         assert action.metavar == "DIR" and action.nargs is None, name
         assert "folder" in action.help, name
@@ -93,6 +93,8 @@ CASES = {
                     "--workers", "1", "--out", "{tmp}/mc.parquet"], ["montecarlo_maxerr_task.png"]),
     "calafiore": (["calafiore", "--n-true", "1", "--duration", "0.2"],
                   ["fig4_reference.png", "fig5_nominal_errors.png", "fig6_robust_errors.png", "torques.png"]),
+    "demo": (["demo", "--skip-repair", "--duration", "0.2", "--workers", "1", "--out", "{tmp}/demo"],
+             ["cpt_sp1_none.png", "cpt_sp2_none.png", "cpt_sp1_max.png", "cpt_sp2_max.png"]),
     "bascetta": (["bascetta", "--duration", "0.2"],
                  ["fig1_joint_trajectory.png", "fig2_cartesian_trajectory.png", "fig3_w_base.png",
                   "fig4_w_elbow.png"]),

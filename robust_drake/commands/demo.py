@@ -36,7 +36,7 @@ def register(sub):
     p.add_argument("--workers", type=int, default=None, help="parallel runs (default: the core count)")
     p.add_argument("--duration", type=float, default=None, help="shorten every closed-loop run [s] (testing)")
     p.add_argument("--skip-repair", action="store_true", help="only the CPT table (part 1)")
-    add_output_flags(p, plot=None)
+    add_output_flags(p, plot="DIR", files="cpt_<controller>_<load>.png (default: into --out)")
     p.set_defaults(func=run)
 
 
@@ -94,11 +94,14 @@ def run(args) -> int:
     from robust_drake.log import get_logger
 
     say = get_logger().info if args.json else print  # --json: progress to stderr via the logger
-    rows = cpt_table(out, workers=args.workers, duration=args.duration, progress=show_progress(args))
+    from robust_drake.cli import plot_dir
+
+    figs = plot_dir(args) or out
+    rows = cpt_table(figs, workers=args.workers, duration=args.duration, progress=show_progress(args))
     if not args.json:
         print("== 1. Spong's SP1/SP2 on the D2R2 (Jaritz & Spong tables 2-3) ==")
         print_cpt_table(rows)
-        print(f"plots written to {out}/\n")
+        print(f"plots written to {figs}/\n")
     loop = None
     if not args.skip_repair:
         from robust_drake.experiments.repair_control import run as run_loop
