@@ -86,6 +86,7 @@ axes[0].legend()
 out = os.environ.get("ROBUST_DRAKE_NOTEBOOK_OUT")
 if out:
     fig.savefig(os.path.join(out, "bascetta_rocco.png"))
+plt.show()
 
 # %% [markdown]
 # ## Constant rho (section II-C) and when the 11 % appears (issue 15)

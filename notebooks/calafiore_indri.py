@@ -58,6 +58,7 @@ for k, (n, out) in enumerate(results.items()):
 ax.set_xticks(range(8), names, rotation=45)
 ax.set_ylabel("theta0 +- sqrt(P_ii)")
 ax.legend()
+plt.show()
 
 # %% [markdown]
 # ## Nominal vs robust control, published ellipsoid (section 5.1) and our own
@@ -78,7 +79,9 @@ fig, axes = plt.subplots(1, 2, figsize=(10, 3.5), sharey=True)
 for ax, law in zip(axes, ("nominal", "robust")):
     ax.plot(logs[law]["t"], logs[law]["e"])
     ax.set(title=f"{law} control (CI fig. {5 if law == 'nominal' else 6})", xlabel="t [s]")
+    ax.legend(["joint 1", "joint 2"], loc="upper right")
 axes[0].set_ylabel("tracking error [rad]")
+plt.show()
 
 # %% [markdown]
 # ## Fig. 3, the settling time and the full-rank certificate (issue 15)
@@ -102,6 +105,7 @@ for j, ax in enumerate(axes):
     ax.set_ylabel(f"tau{j + 1} [N m]")
 axes[0].legend()
 axes[0].set_title("CI fig. 3 analog (5 samples)")
+plt.show()
 print("RMS reconstruction error vs noise-free torque [N m]:", np.round(rec["rms_vs_true"], 3))
 for law in ("nominal", "robust"):
     print(f"{law:8s} relative settling time {np.round(study['summary'][law]['settling_time_rel'], 3)} s")

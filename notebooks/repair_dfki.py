@@ -89,6 +89,7 @@ img = plt.imread(path)
 plt.figure(figsize=(14, 4))
 plt.imshow(img)
 plt.axis("off")
+plt.show()
 ana = R.analyse(fit, base.residual)
 print("unexplained structure:", ana["unexplained_structure"], ana["where"][:3])
 
@@ -108,6 +109,7 @@ img = plt.imread(plot_cutoff_sweep(sweep, os.path.join(OUT, "cutoff_sweep.png"))
 plt.figure(figsize=(14, 4))
 plt.imshow(img)
 plt.axis("off")
+plt.show()
 
 # %% [markdown]
 # ## 4-6. Selection, estimator and before/after
@@ -133,6 +135,7 @@ for j in range(2):
     ax[j].bar(["baseline", "repaired"], [rep["baseline"]["rms_validate"][j], rep["final"]["rms_validate"][j]])
     ax[j].set_title(f"validation RMS torque error, joint {j} [N m]")
 fig.tight_layout()
+plt.show()
 
 # %% [markdown]
 # The report (`report.md`, `report.json`, plots) is in `OUT`. On a simulated experiment the hidden

@@ -4,7 +4,13 @@ Each subcommand lives in its own module under :mod:`robust_drake.commands` and
 exposes ``register(subparsers)``, which adds an ``argparse`` sub-parser and sets
 ``func=run`` on it. ``run(args)`` returns an exit status. Every subcommand has
 ``--json`` (one JSON document on stdout, nothing else) and a readable table
-otherwise; ``--plot`` where a picture helps.
+otherwise; ``--plot DIR`` where a picture helps: a folder, created if needed, into which the
+command writes its named PNG files (the same meaning in every command).
+
+Global options (before the subcommand, or after it): ``--version``, ``-v``/``--verbose``
+(debug messages), ``-q``/``--quiet`` (no progress, warnings and errors only). Progress goes to
+stderr (the ``robust_drake`` logger and progress bars); stdout holds only the result, so
+``--json`` output stays one JSON document.
 
 User errors (:class:`robust_drake.errors.RobustDrakeError`) are printed as
 ``error: ...`` on stderr with exit status 2, never as a traceback.
@@ -35,11 +41,49 @@ COMMAND_MODULES = [
 ]
 
 
-def add_output_flags(parser: argparse.ArgumentParser, plot: str | None = "FILE") -> None:
-    """Add the shared ``--json`` flag and, when ``plot`` is a metavar, ``--plot``."""
-    parser.add_argument("--json", action="store_true", help="print one JSON document for machines")
+def add_output_flags(parser: argparse.ArgumentParser, plot: str | None = None, files: str | None = None) -> None:
+    """Add the shared ``--json`` flag and, when ``plot`` is set, ``--plot DIR``.
+
+    ``files`` names the PNG files the command writes into DIR (shown in ``--help``). ``plot``
+    is kept truthy/None for compatibility: every ``--plot`` is a folder (see :func:`plot_dir`).
+    """
+    parser.add_argument("--json", action="store_true",
+                        help="print one JSON document on stdout (progress, if any, goes to stderr)")
     if plot:
-        parser.add_argument("--plot", metavar=plot, default=None, help="write plot(s) to this path")
+        what = f": {files}" if files else ""
+        parser.add_argument("--plot", metavar="DIR", default=None,
+                            help=f"write the figures as PNG files into folder DIR (created if needed){what}")
+
+
+def plot_dir(args, option: str = "--plot") -> "pathlib.Path | None":
+    """The ``--plot`` folder of ``args``, created; None when the option was not given.
+
+    Refuses an empty value, an existing file, and a file name with an image suffix (``--plot``
+    was a file in some commands before: the message says what it means now) with
+    :class:`RobustDrakeError`."""
+    import pathlib
+
+    value = getattr(args, option.lstrip("-").replace("-", "_"), None)
+    if value is None:
+        return None
+    if not str(value).strip():
+        raise RobustDrakeError(f"{option} is empty; give a folder path (the PNG files are written into it)")
+    path = pathlib.Path(value)
+    if path.suffix.lower() in (".png", ".svg", ".pdf", ".jpg", ".jpeg") and not path.is_dir():
+        raise RobustDrakeError(f"{option} takes a folder (the command writes its named PNG files into it), "
+                               f"got the file name {value!r}; use e.g. {option} {path.parent / path.stem}")
+    if path.exists() and not path.is_dir():
+        raise RobustDrakeError(f"{option} {value}: exists and is not a folder")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise RobustDrakeError(f"{option} {value}: cannot create the folder ({exc.strerror})") from None
+    return path
+
+
+def show_progress(args) -> bool:
+    """True unless ``-q`` was given: commands draw progress bars on stderr."""
+    return getattr(args, "verbosity", 0) >= 0
 
 
 def strict_json(obj):
@@ -101,16 +145,47 @@ def non_negative(kind, option):
     return parse
 
 
+def _version() -> str:
+    from robust_drake import __version__
+
+    return f"robust-drake {__version__}"
+
+
+def _verbosity_flags(parser: argparse.ArgumentParser, default) -> None:
+    g = parser.add_mutually_exclusive_group()
+    g.add_argument("-v", "--verbose", dest="verbosity", action="store_const", const=1, default=default,
+                   help="more messages: debug output of the robust_drake logger on stderr")
+    g.add_argument("-q", "--quiet", dest="verbosity", action="store_const", const=-1, default=default,
+                   help="no progress messages or bars; only warnings and errors on stderr")
+
+
 def build_parser() -> argparse.ArgumentParser:
+    """The ``robust-drake`` parser: global options and one sub-parser per command module."""
     parser = argparse.ArgumentParser(
         prog="robust-drake",
         description="Robust identification and robust control of robot manipulators, on Drake.",
+        epilog="Run 'robust-drake COMMAND --help' for a command's options.",
     )
+    parser.add_argument("--version", action="version", version=_version(),
+                        help="print the package version and exit")
+    _verbosity_flags(parser, default=0)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     for name in COMMAND_MODULES:
         importlib.import_module(name).register(sub)
+    for p in sub.choices.values():  # -v / -q also after the subcommand (SUPPRESS keeps a global one)
+        _verbosity_flags(p, default=argparse.SUPPRESS)
     return parser
+
+
+def configure_logging(verbosity: int) -> None:
+    """Route the ``robust_drake`` logger to stderr at the level ``-v``/``-q`` chose
+    (default INFO: progress messages shown)."""
+    import logging
+
+    from robust_drake.log import set_log_level
+
+    set_log_level({1: logging.DEBUG, 0: logging.INFO, -1: logging.WARNING}[max(-1, min(1, verbosity))])
 
 
 def glue_negative_values(parser, argv: list[str]) -> list[str]:
@@ -156,6 +231,7 @@ def main(argv: list[str] | None = None) -> int:
         os.environ["MPLBACKEND"] = "Agg"
     parser = build_parser()
     args = parser.parse_args(glue_negative_values(parser, sys.argv[1:] if argv is None else list(argv)))
+    configure_logging(args.verbosity)
     try:
         status = args.func(args)
     except RobustDrakeError as exc:

@@ -83,25 +83,74 @@ _DEFAULT = object()
 class ClosedLoopConfig:
     """Everything that defines one closed loop (serialisable except ``effects`` callables).
 
-    ``controller`` / ``observer``: a registry name, a pydrake LeafSystem instance (one loop
-    per instance) or a factory ``f(ctx, **params) -> LeafSystem`` (``ctx`` a
-    :class:`~robust_drake.registry.BuildContext`); ports as in BUILD_NOTES "Architecture
-    contract", checked by :func:`robust_drake.registry.check_ports` (the error names the
-    missing port). ``to_dict`` records a custom block as ``"custom:<name>"``.
-    ``plant_friction``: ``{"coulomb": [...], "viscous": [...]}`` for the plant-side
-    Coulomb + viscous block, None for a frictionless plant; the default is the robot description's
-    (``robust_drake.description``; the D2R2's values for the D2R2, None for robots without one). ``friction_compensation`` adds the fixed JS
-    eqs. 89-90 term (``compensation_params={"k_hat": [...]}``). ``encoder_resolution``
-    [rad] quantises the measured position (None: exact); default from the description (theta_m
-    for the D2R2). ``torque_limit`` [N m] saturates the command (None: no limit); default the
-    description's torque limits when it says ``saturate`` (31.2 N m for the D2R2). ``true_theta`` sets the D2R2 plant's eq. 14
-    parameters (Monte Carlo "true" arm). ``effects`` are extra plant-side blocks: each a
-    registry name with params ``(name, {params})`` or a callable ``f(ctx) -> LeafSystem``
-    with input ``state`` (and optionally ``tau``) and output ``generalized_force``.
-    ``plant_setup`` callables ``f(plant, plant_context)`` change the plant's parameters
-    before each run. ``feedforward`` callables ``f(q_meas, v_hat) -> torques`` are added to the
-    controller's command within each tick (model-based compensation; the controller must be a
-    :class:`~robust_drake.systems.controllers.base.DiscreteController`).
+    Defaults marked "robot" are filled in by :meth:`resolved` from the robot's description
+    (:mod:`robust_drake.description`): the D2R2's values for the D2R2, none for arms without one.
+
+    Parameters
+    ----------
+    robot : str
+        Robot name (URDF shipped in ``robust_drake/robots``) or a URDF path (default ``"d2r2"``).
+    load : str
+        Load variant, ``"none"`` or ``"max"`` (JS section 9).
+    controller : str, LeafSystem or callable
+        Controller registry name (``"pd"``, ``"sp1"``, ``"sp2"``, ``"zc"``, ``"lgplus"``, ...), a
+        pydrake LeafSystem instance (one loop per instance) or a factory ``f(ctx, **params) ->
+        LeafSystem`` (``ctx`` a :class:`~robust_drake.registry.BuildContext`); ports as in
+        BUILD_NOTES "Architecture contract", checked by
+        :func:`robust_drake.registry.check_ports`; ``to_dict`` records a custom block as
+        ``"custom:<name>"``.
+    controller_params : dict
+        Controller parameters (gains, epsilons, ...), by the controller's documented names.
+    trajectory : str
+        Reference: ``"cpt"`` (JS eq. 48), ``"circle"`` (JS section 10), ``"refmodel"``,
+        ``"sine"``, ``"step"``, ``"line"``.
+    trajectory_params : dict
+        Reference parameters.
+    rate : float
+        Controller and observer sample rate [Hz] (JS: 2500).
+    observer : str, LeafSystem or callable
+        Velocity estimator (default ``"averaging"``, JS eqs. 64/66): a registry name, an instance
+        or a factory, as for ``controller``.
+    observer_params : dict
+        Estimator parameters.
+    plant_friction : dict or None
+        ``{"coulomb": [N m], "viscous": [N m s/rad]}`` per joint for the plant-side friction
+        block; None for a frictionless plant (default: robot).
+    friction_compensation : bool
+        Add the fixed compensation of JS eqs. 89-90 to the command.
+    compensation_params : dict
+        ``{"k_hat": [...]}`` for that compensation.
+    encoder_resolution : float or None
+        Quantum of the measured position [rad] (None: exact; default: robot, theta_m for the
+        D2R2).
+    torque_limit : list of float or None
+        Saturation of the command [N m] per joint (None: none; default: robot, 31.2 N m on the
+        D2R2).
+    duration : float or None
+        Simulated time [s] (None: the reference's).
+    metrics_skip : float
+        Ignore the first ``metrics_skip`` s in the error criteria [s].
+    metrics_dt : float or None
+        Summation grid of the |error_n| criteria [s] (JS eqs. 55, 58); None: every sample.
+    true_theta : list of float or None
+        D2R2 plant parameters of JS eq. 14 (the Monte Carlo "true" arm).
+    initial_q : list of float or None
+        Initial joint angles [rad] (None: the reference's start, at rest).
+    effects : list
+        Extra plant-side blocks: registry ``(name, {params})`` pairs or callables
+        ``f(ctx) -> LeafSystem`` with input ``state`` (optionally ``tau``) and output
+        ``generalized_force``.
+    plant_setup : list
+        Callables ``f(plant, plant_context)`` changing the plant's parameters before each run.
+    feedforward : list
+        Callables ``f(q_meas, v_hat) -> torques`` [N m] added to the controller's command within
+        each tick (the controller must be a
+        :class:`~robust_drake.systems.controllers.base.DiscreteController`).
+    divergence_error : float or None
+        Joint error [rad] beyond which a run stops as diverged (None: never).
+    flexibility : FlexibilityConfig, dict or None
+        Two-mass drives and structural modes (:mod:`robust_drake.systems.flexibility`);
+        None: rigid arm.
     """
 
     robot: str = "d2r2"

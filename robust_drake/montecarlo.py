@@ -343,12 +343,17 @@ def boxplot(df, path, metric: str = "maxerr_task", title: str | None = None,
                   .to_numpy() for c in ctrls]
         ax.boxplot([v if len(v) else np.array([np.nan]) for v in groups], whis=(5, 95))
         ax.set_xticks(range(1, len(ctrls) + 1), ctrls)
+        marked = False
         for i, v in enumerate(groups, start=1):
             if len(v):
-                ax.plot([i], [v.max()], "rv", ms=6)
+                ax.plot([i], [v.max()], "rv", ms=6, label=None if marked else "worst draw")
+                marked = True
         unit = "m" if m.endswith("task") else "rad"
         ax.set_ylabel(f"{m} [{unit}]")
         ax.grid(True, axis="y", alpha=0.3)
+        ax.set_title(f"{m} (box 25-75 %, whiskers 5-95 %)", fontsize=8)
+    if axes[0][-1].get_legend_handles_labels()[0]:
+        axes[0][-1].legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
     fig.suptitle(title or "Monte Carlo per controller (whiskers 5-95 %, red = worst draw)")
     fig.tight_layout()
     pathlib.Path(path).parent.mkdir(parents=True, exist_ok=True)

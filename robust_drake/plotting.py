@@ -10,7 +10,14 @@ from __future__ import annotations
 
 import pathlib
 
+from typing import TYPE_CHECKING
+
 import numpy as np
+
+if TYPE_CHECKING:  # pragma: no cover
+    from matplotlib.figure import Figure
+
+    from robust_drake.diagram import SimulationResult
 
 
 def subplots(nrows: int = 1, ncols: int = 1, *, figsize=None, **kwargs):
@@ -29,19 +36,45 @@ def _prepare(path) -> pathlib.Path:
     return path
 
 
-def plot_tracking(result, path, title: str | None = None):
-    """Tracking errors per joint [rad], task-space error [m] and torques [N m] against time,
-    the layout of JS figures 4-11. Returns the path written."""
-    path = _prepare(path)
+def _describe(result) -> str:
+    """'sp2 on d2r2 (load none), circle, 2500 Hz, 2 s, friction compensation off' from the config."""
+    c = result.config or {}
+    fc = "on" if c.get("friction_compensation") else "off"
+    return (f"{c.get('controller', '?')} on {c.get('robot', '?')} (load {c.get('load', '?')}), "
+            f"{c.get('trajectory', '?')}, {c.get('rate', float('nan')):g} Hz, "
+            f"{result.sim_seconds:.3g} s, friction compensation {fc}")
+
+
+def tracking_figure(result: "SimulationResult", title: str | None = None) -> "Figure":
+    """Tracking errors per joint [rad], task-space error [mm] and torques [N m] against time,
+    the layout of JS figures 4-11, as a matplotlib ``Figure``.
+
+    The interval the metrics skip (``metrics_skip``, 1 s for the circle, JS section 10) is
+    shaded; the torque limit (D2R2: 31.2 N m) is drawn dashed; legends sit outside the data.
+
+    Parameters
+    ----------
+    result : SimulationResult
+        A run of :func:`robust_drake.simulate`.
+    title : str, optional
+        Figure title; None describes the run (controller, robot, load, trajectory, rate,
+        duration, friction compensation).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        Detached from pyplot: display it in a notebook or ``fig.savefig(path)``.
+    """
     t = result.t
     e = result.q - result.q_d
     n = e.shape[1]
     rows = n + 2 if result.link_lengths else n + 1
-    fig, axes = subplots(rows, 1, figsize=(8, 1.9 * rows), sharex=True)
+    fig, axes = subplots(rows, 1, figsize=(9, 1.9 * rows + 0.6), sharex=True, squeeze=False)
+    axes = axes[:, 0]
+    skip = float((result.config or {}).get("metrics_skip") or 0.0)
     for j in range(n):
-        axes[j].plot(t, e[:, j], lw=0.8)
-        axes[j].set_ylabel(f"e{j + 1} [rad]")
-        axes[j].grid(alpha=0.3)
+        axes[j].plot(t, e[:, j], lw=0.8, color=f"C{j}")
+        axes[j].set_ylabel(f"e{j + 1} = q{j + 1} - q{j + 1},d [rad]", fontsize=8)
     k = n
     if result.link_lengths:
         from robust_drake.kinematics import planar_forward_kinematics
@@ -49,17 +82,86 @@ def plot_tracking(result, path, title: str | None = None):
         d = np.linalg.norm(planar_forward_kinematics(result.q, result.link_lengths)
                            - planar_forward_kinematics(result.q_d, result.link_lengths), axis=1)
         axes[k].plot(t, d * 1e3, lw=0.8, color="C2")
-        axes[k].set_ylabel("task err [mm]")
-        axes[k].grid(alpha=0.3)
+        axes[k].set_ylabel("task-space error [mm]", fontsize=8)
         k += 1
     for j in range(n):
-        axes[k].plot(t, result.tau[:, j], lw=0.6, label=f"tau{j + 1}")
-    axes[k].set_ylabel("torque [N m]")
+        axes[k].plot(t, result.tau[:, j], lw=0.6, color=f"C{j}", label=f"tau{j + 1}")
+    limit = (result.config or {}).get("torque_limit")
+    if limit is not None:
+        lims = np.broadcast_to(np.asarray(limit, float), (n,))
+        same = bool(np.all(lims == lims[0]))
+        for j, lim in enumerate(lims[:1] if same else lims):
+            for sign in (1, -1):
+                axes[k].axhline(sign * lim, color="k" if same else f"C{j}", ls="--", lw=0.7,
+                                label=(f"limit +-{lim:g} N m" + ("" if same else f" (tau{j + 1})"))
+                                if sign > 0 else None)
+    axes[k].set_ylabel("applied torque [N m]", fontsize=8)
     axes[k].set_xlabel("t [s]")
-    axes[k].legend(loc="upper right", fontsize=8)
-    axes[k].grid(alpha=0.3)
-    if title:
-        axes[0].set_title(title)
+    axes[k].legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7, frameon=False)
+    for ax in axes:
+        ax.grid(alpha=0.3)
+        if skip > 0:
+            ax.axvspan(t[0], t[0] + skip, color="0.93", zorder=0,
+                       label="not in the metrics" if ax is axes[0] else None)
+    if skip > 0:
+        axes[0].legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7, frameon=False)
+    fig.suptitle(title or _describe(result), fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    return fig
+
+
+def task_path_figure(result: "SimulationResult", title: str | None = None) -> "Figure":
+    """The end effector's path in the plane, desired and actual [m] (planar 2-link arms).
+
+    Parameters
+    ----------
+    result : SimulationResult
+        A run of a planar 2-link arm (``result.link_lengths`` set).
+    title : str, optional
+        Figure title (None: describes the run).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        Equal axes in m; the desired path dashed, the start marked.
+    """
+    from robust_drake.errors import RobustDrakeError
+    from robust_drake.kinematics import planar_forward_kinematics
+
+    if not result.link_lengths:
+        raise RobustDrakeError("task_path_figure needs a planar 2-link arm (result.link_lengths)")
+    p = planar_forward_kinematics(result.q, result.link_lengths)
+    p_d = planar_forward_kinematics(result.q_d, result.link_lengths)
+    fig, ax = subplots(figsize=(6, 5.5))
+    ax.plot(p_d[:, 0], p_d[:, 1], "k--", lw=1.0, label="desired")
+    ax.plot(p[:, 0], p[:, 1], color="C3", lw=0.9, label="actual")
+    ax.plot(p_d[0, 0], p_d[0, 1], "ko", ms=4, label="start")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set(xlabel="x [m]", ylabel="y [m]")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
+    ax.set_title(title or "task-space path\n" + _describe(result), fontsize=9)
+    fig.tight_layout()
+    return fig
+
+
+def plot_tracking(result: "SimulationResult", path: "str | pathlib.Path", title: str | None = None) -> pathlib.Path:
+    """Write :func:`tracking_figure` to ``path`` (PNG; the folder is created).
+
+    Parameters
+    ----------
+    result : SimulationResult
+        A closed-loop run.
+    path : str or pathlib.Path
+        Output file.
+    title : str, optional
+        Figure title (None: describes the run).
+
+    Returns
+    -------
+    pathlib.Path
+        The file written.
+    """
+    path = _prepare(path)
+    tracking_figure(result, title).savefig(path, dpi=110)
     return path

@@ -151,9 +151,9 @@ def test_cli_montecarlo_d2r2_and_imi_scara(tmp_path, capsys):
     from robust_drake.cli import main
 
     out = tmp_path / "mc.parquet"
-    plot = tmp_path / "mc.png"
+    plot = tmp_path / "plots" / "montecarlo_maxerr_task.png"
     status = main(["montecarlo", "--robot", "d2r2", "--controllers", "sp1,pd", "--draws", "2",
-                   "--duration", "0.2", "--workers", "1", "--out", str(out), "--plot", str(plot),
+                   "--duration", "0.2", "--workers", "1", "--out", str(out), "--plot", str(tmp_path / "plots"),
                    "--json"])
     doc = json.loads(capsys.readouterr().out)
     assert status == 0 and doc["draws"] == 2 and plot.stat().st_size > 1000
@@ -167,7 +167,7 @@ def test_cli_montecarlo_d2r2_and_imi_scara(tmp_path, capsys):
     ell.write_text(json.dumps({"theta0": theta0.tolist(), "P": P.tolist()}))
     status = main(["montecarlo", "--robot", "imi_scara", "--ellipsoid", str(ell),
                    "--controllers", "pd", "--draws", "2", "--duration", "0.2", "--workers", "1",
-                   "--out", str(tmp_path / "imi.parquet"), "--plot", str(tmp_path / "i.png"),
+                   "--out", str(tmp_path / "imi.parquet"), "--plot", str(tmp_path / "iplots"),
                    "--json"])
     doc = json.loads(capsys.readouterr().out)
     assert status == 0 and doc["controllers"][0]["ok"] == 2 and doc["rejected"] > 0

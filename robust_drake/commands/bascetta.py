@@ -35,7 +35,8 @@ def register(sub):
                    help="instead of the case study: the w-energy reduction (B vs A) one parameter at a time "
                         "(boundary, gains, line length, travel time, beta_0 scale); --plot DIR draws it")
     p.add_argument("--workers", type=int, default=None, help="parallel runs of --sensitivity")
-    add_output_flags(p, plot="DIR")
+    add_output_flags(p, plot="DIR", files="fig1_joint_trajectory.png, fig2_cartesian_trajectory.png, "
+                                          "fig3_w_base.png, fig4_w_elbow.png, ... (w_energy_sensitivity.png with --sensitivity)")
     p.set_defaults(func=run)
 
 
@@ -44,8 +45,11 @@ def _run_sensitivity(args) -> int:
 
     from robust_drake.experiments.bascetta import plot_sensitivity, sensitivity_study
 
+    from robust_drake.cli import plot_dir
+
+    plots = plot_dir(args)
     rows = sensitivity_study(duration=args.duration, workers=args.workers, progress=not args.json)
-    plot = plot_sensitivity(rows, os.path.join(args.plot, "w_energy_sensitivity.png")) if args.plot else None
+    plot = plot_sensitivity(rows, os.path.join(str(plots), "w_energy_sensitivity.png")) if plots is not None else None
     if args.json:
         print_json({"rows": rows, "plot": plot})
         return 0
@@ -67,21 +71,27 @@ def _run_sensitivity(args) -> int:
 def run(args) -> int:
     from robust_drake.experiments.bascetta import plot_case_study, run_case_study, run_constant_rho
 
+    from robust_drake.cli import plot_dir
+    from robust_drake.log import slow_step
+
     if args.sensitivity:
         return _run_sensitivity(args)
     gains = _gains(args.gains)
+    plots = plot_dir(args)
     if not args.mass_scale > 0:
         raise RobustDrakeError("--mass-scale must be positive")
     pert = {"link1": args.mass_scale, "link2": args.mass_scale}
-    keep = bool(args.plot)
-    study = run_case_study(gains, duration=args.duration, boundary=args.boundary, perturbation=pert,
-                           keep_results=keep)
+    keep = plots is not None
+    with slow_step(f"bascetta: Case A and Case B with K_P, K_D = {gains[0]:g}, {gains[1]:g} ..."):
+        study = run_case_study(gains, duration=args.duration, boundary=args.boundary, perturbation=pert,
+                               keep_results=keep)
     paths = []
-    if args.plot:
+    if plots is not None:
         other_gains = (100.0, 10.0) if gains != (100.0, 10.0) else (25.0, 5.0)
-        other = run_case_study(other_gains, duration=args.duration, boundary=args.boundary, perturbation=pert,
-                               lemma_check=False, keep_results=True)
-        paths = plot_case_study(study, args.plot, other)
+        with slow_step(f"bascetta: K_P, K_D = {other_gains[0]:g}, {other_gains[1]:g} for the figures ..."):
+            other = run_case_study(other_gains, duration=args.duration, boundary=args.boundary,
+                                   perturbation=pert, lemma_check=False, keep_results=True)
+        paths = plot_case_study(study, plots, other)
         study.pop("_results", None)
         study["plots"] = paths
     if args.constant_rho is not None:

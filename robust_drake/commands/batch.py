@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 import sys
 
-from robust_drake.cli import add_output_flags, format_table, print_json
+from robust_drake.cli import add_output_flags, format_table, print_json, show_progress
 from robust_drake.errors import RobustDrakeError
 
 
@@ -30,7 +30,7 @@ def register(sub):
                    help="rerun scenarios recorded as failed (diverged runs are kept)")
     p.add_argument("--duration", type=float, default=None,
                    help="override every scenario's simulated time [s] (quick trials)")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar (as -q)")
     p.add_argument("--no-reuse", action="store_true",
                    help="build a fresh diagram for every scenario (default: reuse per worker)")
     p.add_argument("--metric", default="maxerr_task",
@@ -66,7 +66,7 @@ def run(args) -> int:
     try:
         df = run_batch(scenarios, out=args.out, workers=args.workers, scheduler=args.scheduler,
                        force=args.force, retry_failed=args.retry_failed,
-                       progress=not args.no_progress and not args.json,
+                       progress=not args.no_progress and show_progress(args),
                        reuse=not args.no_reuse, spec=doc)
     except KeyboardInterrupt:
         print(f"interrupted: finished scenarios are saved in {args.out}; rerun the same command "

@@ -14,17 +14,24 @@ from robust_drake.errors import DataError, RobustDrakeError
 
 
 def register(subparsers):
-    p = subparsers.add_parser("ellipsoid", help="confidence ellipsoid of the parameters (Calafiore & Indri SDP)")
+    p = subparsers.add_parser(
+        "ellipsoid", help="confidence ellipsoid of the parameters (Calafiore & Indri SDP)",
+        description="Identify the IMI SCARA's parameters from a simulated experiment (or --data) with "
+                    "bounded errors on tau and qdd, solve for the minimal-trace ellipsoid containing every "
+                    "least-squares solution (CI section 3.1, an SDP through Drake's MathematicalProgram), "
+                    "certify it by sampling Delta, and print theta0, sqrt(P_ii) and trace(P).")
     p.add_argument("--robot", default="imi_scara", help="robot (only imi_scara has the section 5 regressor)")
     p.add_argument("--samples", type=int, default=5, help="number of samples n_m (default 5, as in the paper)")
-    p.add_argument("--solver", default="clarabel", choices=["clarabel", "scs", "csdp"])
+    p.add_argument("--solver", default="clarabel", choices=["clarabel", "scs", "csdp"],
+                   help="SDP solver (default clarabel; csdp with the drake backend only)")
     p.add_argument("--backend", default="drake", choices=["drake", "cvxpy", "direct"],
                    help="drake: MathematicalProgram (default); cvxpy; direct: pip clarabel")
     p.add_argument("--formulation", default="chordal", choices=["chordal", "full", "energy", "auto"],
                    help="chordal SDP (default); full dense SDP; energy: sound closed-form bound (~5 s at 1000 "
                         "samples, 2.2-4x the SDP's trace); auto: chordal up to 200 samples, energy above")
-    p.add_argument("--draws", type=int, default=1000, help="Delta draws for the certificate")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--draws", type=int, default=1000, help="Delta draws for the certificate (default 1000)")
+    p.add_argument("--seed", type=int, default=0,
+                   help="random seed of the simulated experiment and the certificate (default 0)")
     p.add_argument("--data", default=None, help="CSV with columns q1,q2,qd1,qd2,qdd1,qdd2,tau1,tau2")
     p.add_argument("--bounds", default=None,
                    help="delta_max as 'tau=4.5744,0.5459;qdd=0.5892,1.6478' (default: the paper's)")
@@ -87,8 +94,12 @@ def run(args) -> int:
         check_save_path(args.save)
     bounds = parse_bounds(args.bounds) if args.bounds else None
     data = _read_csv(args.data) if args.data else None
-    out = run_ellipsoid_experiment(args.samples, args.solver, args.seed, args.backend, args.formulation, args.draws,
-                                   bounds=bounds, data=data)
+    from robust_drake.log import slow_step
+
+    with slow_step(f"ellipsoid: {args.formulation} formulation, {args.backend}/{args.solver}, "
+                   f"certificate with {args.draws} draws ..."):
+        out = run_ellipsoid_experiment(args.samples, args.solver, args.seed, args.backend, args.formulation,
+                                       args.draws, bounds=bounds, data=data)
     res = out.pop("_result")
     if args.save:
         res.ellipsoid.save(args.save)

@@ -19,7 +19,8 @@ def register(sub):
             "on the boundary of a Calafiore & Indri confidence ellipsoid (JSON keys theta0, P). "
             "Prints percentiles and the worst case of the task-space error per controller, "
             "writes box plots and a resumable Parquet file of all runs."))
-    p.add_argument("--robot", default="d2r2", choices=["d2r2", "imi_scara"])
+    p.add_argument("--robot", default="d2r2", choices=["d2r2", "imi_scara"],
+                   help="d2r2 (JS eq. 93 load box) or imi_scara (CI ellipsoid; needs --ellipsoid); default d2r2")
     p.add_argument("--controllers", default="sp1,sp2",
                    help="comma-separated controller names (default sp1,sp2)")
     p.add_argument("--draws", type=int, default=200, help="parameter draws (default 200)")
@@ -40,12 +41,12 @@ def register(sub):
                    help="metric for the percentiles and plots (default maxerr_task)")
     p.add_argument("--out", default=None,
                    help="results Parquet (default out/montecarlo_<robot>.parquet); resumable; the "
-                        "box plot goes beside it unless --plot is given")
+                        "box plot <stem>_<metric>.png goes beside it unless --plot DIR is given")
     p.add_argument("--workers", type=int, default=None, help="local worker processes")
     p.add_argument("--scheduler", default=None, metavar="ADDRESS", help="Dask scheduler address")
     p.add_argument("--force", action="store_true", help="overwrite --out of another study")
-    p.add_argument("--no-progress", action="store_true")
-    add_output_flags(p, plot="FILE")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar (as -q)")
+    add_output_flags(p, plot="DIR", files="montecarlo_<metric>.png (box plot per controller)")
     p.set_defaults(func=run)
 
 
@@ -60,9 +61,11 @@ def run(args) -> int:
 
     if args.metric not in METRIC_KEYS:
         raise RobustDrakeError(f"--metric must be one of {', '.join(METRIC_KEYS)}")
-    for flag, value in (("--out", args.out), ("--plot", args.plot)):
-        if value is not None and not value.strip():
-            raise RobustDrakeError(f"{flag} is empty; give a file path")
+    from robust_drake.cli import plot_dir, show_progress
+
+    if args.out is not None and not args.out.strip():
+        raise RobustDrakeError("--out is empty; give a file path")
+    plots = plot_dir(args)
     controllers = [c.strip() for c in args.controllers.split(",") if c.strip()]
     if not controllers:
         raise RobustDrakeError("--controllers is empty")
@@ -94,16 +97,17 @@ def run(args) -> int:
     # Every file goes beside --out (or to --plot): nothing lands in the working directory
     # unless the user's own paths say so.
     out_path = pathlib.Path(out)
-    plot = args.plot or str(out_path.with_name(f"{out_path.stem}_{args.metric}.png"))
+    plot = (str(plots / f"montecarlo_{args.metric}.png") if plots is not None
+            else str(out_path.with_name(f"{out_path.stem}_{args.metric}.png")))
     if not args.json:
         print(f"{len(controllers)} controllers x {len(thetas)} draws over the {set_desc} "
               f"-> {out}", file=sys.stderr)
     df = run_montecarlo(scenarios, out=out, workers=args.workers, scheduler=args.scheduler,
-                        force=args.force, progress=not (args.no_progress or args.json),
+                        force=args.force, progress=not args.no_progress and show_progress(args),
                         spec={"montecarlo": vars_for_spec(args)})
     table = percentile_table(df, metric=args.metric)
     boxplot(df, plot, metric=args.metric,
-            title=f"{args.robot}: {args.metric} over {len(thetas)} draws")
+            title=f"{args.robot}, {args.trajectory}: {len(thetas)} draws of the {set_desc.split(' (')[0]}, ok runs")
     if args.json:
         print_json({
             "robot": args.robot, "draws": int(len(thetas)), "rejected": int(rejected),

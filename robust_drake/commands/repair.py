@@ -3,10 +3,12 @@
 ::
 
     robust-drake repair FIT.csv [FIT2.csv ...] --robot NAME_OR_URDF [--validate VAL.csv ...]
-                        [--torque tau_meas|tau_con] [--cutoff HZ] --out DIR [--force] [--json] [--plot]
+                        [--torque tau_meas|tau_con] [--cutoff HZ] --out DIR [--force] [--json] [--plot DIR2]
 
-Writes ``DIR/report.md``, ``DIR/report.json`` and (with ``--plot``, or always unless
-``--no-plots``) residual plots. CSVs: canonical (``t, q1..qn, tau1..taun``) or DFKI records.
+Writes ``DIR/report.md``, ``DIR/report.json`` and (unless ``--no-plots``) the residual plots
+``residual_fit.png``, ``residual_validate.png``, ``torque_validate.png`` (and
+``estimator_cutoff.png``); ``--plot DIR2`` also copies those PNG files into DIR2. Progress goes
+to stderr (``-q`` silences it), the JSON of ``--json`` alone to stdout. CSVs: canonical (``t, q1..qn, tau1..taun``) or DFKI records.
 The report is built in a temporary folder beside DIR and moved into place when complete; an
 earlier report in DIR is replaced only with ``--force``. Warnings (poor excitation, unpowered
 joint, units, little data, frozen joint, prismatic joint) are printed as ``warning: ...`` lines
@@ -39,7 +41,8 @@ def register(subparsers) -> None:
                    help="restrict the candidate effect kinds (default: the whole library)")
     p.add_argument("--min-gain", type=non_negative(float, "--min-gain"), default=None,
                    help="minimum relative held-out error reduction to add an effect (default 0.05)")
-    p.add_argument("--max-effects", type=non_negative(int, "--max-effects"), default=4)
+    p.add_argument("--max-effects", type=non_negative(int, "--max-effects"), default=4,
+                   help="add at most this many effects (default 4)")
     p.add_argument("--no-consistent", action="store_true",
                    help="skip the physically consistent (pseudo-inertia LMI) estimate")
     p.add_argument("--no-instruments", action="store_true",
@@ -54,8 +57,8 @@ def register(subparsers) -> None:
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.add_argument("--force", action="store_true",
                    help="replace an earlier report in --out (its plots are removed with it)")
-    add_output_flags(p, plot=None)
-    p.add_argument("--plot", action="store_true", help="write residual plots (default on; kept for symmetry)")
+    add_output_flags(p, plot="DIR", files="residual_fit.png, residual_validate.png, torque_validate.png "
+                                          "(copies of the report's plots in --out)")
     p.set_defaults(func=run)
 
 
@@ -84,9 +87,19 @@ def run(args) -> int:
         if not args.sigma_rel > 0:
             raise RobustDrakeError(f"--sigma-rel must be > 0, got {args.sigma_rel}")
         opts.sigma_rel = args.sigma_rel
-    log = None if args.json else (lambda msg: print(msg, file=sys.stderr))
+    from robust_drake.cli import plot_dir
+
+    if args.plot is not None and args.no_plots:
+        raise RobustDrakeError("--plot and --no-plots contradict each other")
+    plots = plot_dir(args)
+    log = None  # progress lines -> the robust_drake logger -> stderr (-q silences them)
     rep = run_repair(args.fit, opts, validate_paths=args.validate, out_dir=args.out, progress=log,
                      overwrite=args.force)
+    if plots is not None:
+        import shutil
+
+        rep["plot_copies"] = [str(shutil.copy(os.path.join(args.out, f), plots / os.path.basename(f)))
+                              for f in rep.get("plots") or [] if os.path.isfile(os.path.join(args.out, f))]
     for w in rep.get("warnings") or []:  # the same list as report.json["warnings"] and report.md
         print(f"warning: {w}", file=sys.stderr)
     if args.json:

@@ -21,20 +21,29 @@ def register(sub):
     p.add_argument("--duration", type=float, default=None, help="simulated time [s] (default: the trajectory's)")
     p.add_argument("--skip", type=non_negative(float, "--skip"), default=None,
                    help="ignore the first SKIP s in the metrics (default 0; 1 s for the circle as in JS section 10)")
-    p.add_argument("--friction-compensation", action="store_true", help="add the fixed compensation of JS eqs. 89-90")
+    p.add_argument("--friction-compensation", action="store_true",
+                   help="add the fixed compensation of JS eqs. 89-90 (default off, as in compare's tables 2-3; "
+                        "sweep-rate turns it on)")
     m = p.add_mutually_exclusive_group()
     m.add_argument("--rigid", action="store_true", help="rigid arm (default)")
     m.add_argument("--flexible", action="store_true",
                    help="D2R2 only: two-mass drives, motor-side encoders, link-2 bending (BUILD_NOTES 'Flexible D2R2')")
-    add_output_flags(p, plot="FILE")
+    p.add_argument("--diagram", metavar="FILE", default=None,
+                   help="write the closed loop's block diagram: FILE.svg/.png/.pdf (needs Graphviz's dot) "
+                        "or FILE.dot (the source)")
+    p.add_argument("--meshcat", action="store_true",
+                   help="show the arm in Meshcat (pydrake's browser viewer on localhost; the run is "
+                        "recorded for replay; on a terminal the command waits for Enter before exiting)")
+    add_output_flags(p, plot="DIR", files="tracking.png, task_path.png (planar 2-link arms)")
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
     from robust_drake.diagram import ClosedLoopConfig, build_closed_loop
 
-    if args.plot is not None and not args.plot.strip():
-        raise RobustDrakeError("--plot is empty; give a file or folder path")
+    from robust_drake.cli import plot_dir
+
+    plots = plot_dir(args)
     if not args.rate > 0:
         raise RobustDrakeError(f"--rate must be positive (got {args.rate})")
     flex = None
@@ -52,11 +61,34 @@ def run(args) -> int:
                            duration=args.duration, metrics_skip=skip,
                            friction_compensation=args.friction_compensation, flexibility=flex)
     loop = build_closed_loop(cfg)
-    res = loop.simulate()
-    if args.plot:
-        from robust_drake.plotting import plot_tracking
+    import sys
 
-        plot_tracking(res, args.plot, title=f"{args.controller} / {args.trajectory} / load {args.load}")
+    from robust_drake.log import slow_step
+
+    vis = None
+    if args.meshcat:
+        from robust_drake.viz import add_meshcat
+
+        meshcat, vis = add_meshcat(loop)
+        print(f"meshcat: {meshcat.web_url()}", file=sys.stderr)
+
+    with slow_step(f"simulating {args.controller} on {args.robot}, {args.trajectory}, {args.rate:g} Hz ..."):
+        res = loop.simulate()
+    if vis is not None:
+        from robust_drake.viz import publish_recording
+
+        publish_recording(vis)
+    if args.diagram:
+        from robust_drake.viz import render_diagram
+
+        print(f"diagram: {render_diagram(loop, args.diagram)}", file=sys.stderr)
+    plot = None
+    if plots is not None:
+        from robust_drake.plotting import plot_tracking, task_path_figure
+
+        plot = str(plot_tracking(res, plots / "tracking.png"))
+        if res.link_lengths:  # planar 2-link arm: the end effector's path too
+            task_path_figure(res).savefig(plots / "task_path.png", dpi=110)
     out = res.to_dict()
     out.update(robot=args.robot, load=args.load, controller=args.controller, trajectory=args.trajectory,
                rate=args.rate, model="flexible" if args.flexible else "rigid")
@@ -64,16 +96,21 @@ def run(args) -> int:
     unc = getattr(loop.controller, "uncertainty", None)
     rho = getattr(loop.controller, "rho", None)
     out.update(uncertainty=unc, rho=rho if unc is not None else None)
+    if plot:
+        out["plots"] = [plot] + ([str(plots / "task_path.png")] if res.link_lengths else [])
     if args.json:
         print_json(out)
     else:
         print(f"{args.controller} on {args.robot}{' (flexible)' if args.flexible else ''} (load {args.load}), {args.trajectory}, {args.rate:g} Hz, "
+              f"friction compensation {'on' if args.friction_compensation else 'off'}, "
               f"{res.sim_seconds:.2f} s simulated in {res.wall_seconds:.2f} s"
               + (f"  ** DIVERGED: {res.divergence_reason} **" if res.diverged else ""))
         print(format_table([[out[k] for k in METRIC_KEYS]],
                            ["|error1| rad", "maxerr1 rad", "|error2| rad", "maxerr2 rad", "|error_task| m", "maxerr_task m"]))
         if unc is not None:
             print(f"uncertainty: {unc.get('kind')} ({unc.get('source', '')}), rho = {rho}")
-        if args.plot:
-            print(f"plot: {args.plot}")
+        if plot:
+            print(f"plot: {plot}")
+    if vis is not None and sys.stdin.isatty():
+        input("Meshcat: replay the recording in the browser; press Enter to stop the server ")
     return 1 if res.diverged else 0

@@ -62,9 +62,14 @@ def generate_experiment(out_dir, duration=12.0, seeds=(0, 1)):
     return paths
 
 
-def tracking_comparison(report, trajectories=("cpt", "circle"), duration=None, progress=print) -> list[dict]:
-    """SP1 on the true arm with the baseline-model and the repaired-model compensation."""
+def tracking_comparison(report, trajectories=("cpt", "circle"), duration=None, progress=None) -> list[dict]:
+    """SP1 on the true arm with the baseline-model and the repaired-model compensation.
+
+    ``progress(message)`` receives progress lines (None: the ``robust_drake`` logger)."""
     from robust_drake.diagram import ClosedLoopConfig, simulate
+    from robust_drake.log import progress_callback
+
+    progress = progress_callback(progress)
 
     rows = []
     for traj in trajectories:
@@ -85,9 +90,14 @@ def tracking_comparison(report, trajectories=("cpt", "circle"), duration=None, p
 
 
 def run(out_dir, duration=12.0, track_duration=None, trajectories=("cpt", "circle"), max_effects=6,
-        progress=print) -> dict:
-    """Generate -> repair -> control. Returns {"repair": report, "tracking": rows, "improvement": {...}}."""
+        progress=None) -> dict:
+    """Generate -> repair -> control. Returns {"repair": report, "tracking": rows, "improvement": {...}}.
+
+    ``progress(message)`` receives progress lines (None: the ``robust_drake`` logger)."""
     from robust_drake.identification.repair import RepairOptions, run_repair
+    from robust_drake.log import progress_callback
+
+    progress = progress_callback(progress)
 
     progress("simulated experiment: D2R2 with a hidden 4-per-rev cogging torque on the elbow (joint index 1) "
              f"(amplitude {TRUE_EFFECT[2]['amplitude']} N m)")

@@ -248,7 +248,9 @@ def run_repair(fit_paths, options: RepairOptions, validate_paths=None, out_dir=N
     from robust_drake.identification import input_checks as IC
     from robust_drake.identification import stages as S
 
-    log = progress or (lambda msg: None)
+    from robust_drake.log import progress_callback
+
+    log = progress_callback(progress)  # None: the "robust_drake" logger at INFO
     opts = options
     out_path = check_output_dir(out_dir, overwrite) if out_dir is not None else None
     IC.check_distinct_files(fit_paths, validate_paths)
@@ -332,7 +334,7 @@ def fit_paths_are_files(paths) -> bool:
     return all(isinstance(p, (str, os.PathLike)) and os.path.isfile(p) for p in paths)
 
 
-def run_repair_demo(out_dir: str, kind: str = "stribeck", seed: int = 0, progress=print, **options) -> dict:
+def run_repair_demo(out_dir: str, kind: str = "stribeck", seed: int = 0, progress=None, **options) -> dict:
     """The whole loop on a built-in simulated experiment (no shared data needed).
 
     The "true" arm (DFKI C.1 URDF + baseline friction + one hidden ``kind`` effect from
@@ -344,7 +346,9 @@ def run_repair_demo(out_dir: str, kind: str = "stribeck", seed: int = 0, progres
     from robust_drake.identification.simulated import hidden_effect_case
 
     os.makedirs(out_dir, exist_ok=True)
-    log = progress or (lambda msg: None)
+    from robust_drake.log import progress_callback
+
+    log = progress_callback(progress)
     fit_csv, val_csv, truth = hidden_effect_case(kind, seed=seed, out_dir=out_dir)
     log(f"simulated experiment: hidden {truth['kind']} on joint {truth['joint']} {truth['parameters']}")
     opts = RepairOptions(robot=truth["robot"], **options)
