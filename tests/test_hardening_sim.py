@@ -315,15 +315,15 @@ def _alive(pids) -> set[int]:
 def test_killed_batch_parent_leaves_no_process_behind(tmp_path):
     spec = _write(tmp_path / "spec.yaml", """
         controllers: [pd, sp1]
-        duration: 2.0
-        seeds: [0, 1, 2, 3, 4, 5, 6, 7, 8, 9]
+        duration: 3.0
+        seeds: [0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15, 16, 17, 18, 19]
         """)
     tmp = tmp_path / "tmp"  # the batch's multiprocessing temporary folders go here
     tmp.mkdir()
     parent = subprocess.Popen(
         [sys.executable, "-m", "robust_drake.cli", "batch", spec, "--out",
          str(tmp_path / "r.parquet"), "--workers", "2", "--no-progress"],
-        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env={**_env(), "TMPDIR": str(tmp)})
+        stdout=subprocess.DEVNULL, stderr=open(tmp_path / "stderr.txt", "w"), env={**_env(), "TMPDIR": str(tmp)})
     kids: set[int] = set()
     try:
         deadline = time.monotonic() + 60
@@ -331,7 +331,9 @@ def test_killed_batch_parent_leaves_no_process_behind(tmp_path):
         while time.monotonic() < deadline and len(kids) < 4 and parent.poll() is None:
             kids |= _children(parent.pid)
             time.sleep(0.1)
-        assert len(kids) >= 4 and parent.poll() is None, "the batch did not start its workers"
+        assert len(kids) >= 4 and parent.poll() is None, (
+            f"the batch did not start its workers (children {sorted(kids)}, exit {parent.poll()}): "
+            + (tmp_path / "stderr.txt").read_text()[-2000:])
         os.kill(parent.pid, signal.SIGKILL)
         parent.wait(timeout=10)
         deadline = time.monotonic() + 10

@@ -204,21 +204,32 @@ def test_outside_effect_is_flagged_where_it_sits(robot, case, tmp_path_factory):
     assert all(e["confidence"] != "high" for e in rep["effects"]), rep["effects"]
 
 
-@pytest.mark.xfail(strict=False, reason="needs the selection hook (diagnostic kinds as candidates, "
-                   "repair.py/selection.py owned by h8) and h8's never-worse guard: today the "
-                   "3.1 Hz disturbance on A.0 draws time_delay/position_dependent/rotor_inertia, the "
-                   "dead-zone torque_scale + position_dependent")
-@pytest.mark.parametrize("robot", ROBOTS)
-@pytest.mark.parametrize("case", CASES)
+def _cases(cases, known_failures, reason):
+    """(robot, case) pairs; the measured failures marked xfail with the reason, the rest strict."""
+    out = []
+    for r in ROBOTS:
+        name, marks = (r.values[0], list(r.marks)) if hasattr(r, "values") else (r, [])
+        for c in cases:
+            m = marks + ([pytest.mark.xfail(strict=False, reason=reason)] if (name, c) in known_failures else [])
+            out.append(pytest.param(name, c, marks=m, id=f"{c}-{name}"))
+    return out
+
+
+@pytest.mark.parametrize("robot,case", _cases(
+    CASES, {("dfki_double_pendulum_a0", "dead_zone")},
+    "the selection does not yet offer the diagnostic kinds as candidates (issue 13): the A.0 "
+    "dead-zone still draws a library kind that the never-worse guard keeps"))
 def test_outside_effect_not_misattributed(robot, case, tmp_path_factory):
     rep, _ = _repair(robot, case, tmp_path_factory)
     assert not [e["label"] for e in rep["effects"] if e["kind"] in MISATTRIBUTED]
 
 
-@pytest.mark.xfail(strict=False, reason="never-worse guard (h8, repair pipeline): without it an "
-                   "effect fitted to an outside structure can worsen a joint's validation")
-@pytest.mark.parametrize("robot", ROBOTS)
-@pytest.mark.parametrize("case", ["none"] + CASES)
+@pytest.mark.parametrize("robot,case", _cases(
+    ["none"] + CASES,
+    {("serial7", c) for c in ("none", "periodic_fast", "periodic_slow", "drift")},
+    "serial7: the repair switches to instrumental variables, judged by the replay (BUILD_NOTES "
+    "'Repair pipeline'), and IV's equation error is 1-20 % above the least-squares baseline on "
+    "some joints (issue 13: the estimator switch is not yet held to the per-joint torque rule)"))
 def test_never_worse(robot, case, tmp_path_factory):
     rep, _ = _repair(robot, case, tmp_path_factory)
     before, after = np.array(rep["baseline"]["rms_validate"]), np.array(rep["final"]["rms_validate"])
