@@ -140,6 +140,9 @@ plt.show()
 from robust_drake.experiments.epsilon_search import epsilon_search  # noqa: E402
 
 path = js.plot_friction_curve(OUT / "fig3_friction.png")
+from IPython.display import Image, display  # noqa: E402
+
+display(Image(filename=str(path)))  # JS fig. 3: friction torque against velocity
 fr_rows = js.friction_study(("sp1", "zc"), duration=CPT_DURATION, workers=WORKERS)
 for r in fr_rows:
     print(f"{js.LABELS.get(r['base'], r['base']):4s} {r['variant']:16s} |error_task| = {r['error_task']:.5f} m  "

@@ -7,6 +7,9 @@ import glob
 import json
 import math
 import os
+import pathlib
+import shutil
+import tempfile
 import signal
 import subprocess
 import sys
@@ -318,8 +321,9 @@ def test_killed_batch_parent_leaves_no_process_behind(tmp_path):
         duration: 3.0
         seeds: [0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15, 16, 17, 18, 19]
         """)
-    tmp = tmp_path / "tmp"  # the batch's multiprocessing temporary folders go here
-    tmp.mkdir()
+    # the batch's multiprocessing temporary folders go here; a short path, since the fork server's
+    # AF_UNIX socket lives in it (108-byte limit; pytest's tmp_path under xdist is longer)
+    tmp = pathlib.Path(tempfile.mkdtemp(prefix="rdk", dir="/tmp"))
     parent = subprocess.Popen(
         [sys.executable, "-m", "robust_drake.cli", "batch", spec, "--out",
          str(tmp_path / "r.parquet"), "--workers", "2", "--no-progress"],
@@ -346,6 +350,7 @@ def test_killed_batch_parent_leaves_no_process_behind(tmp_path):
             os.kill(p, signal.SIGKILL)
         if parent.poll() is None:
             parent.kill()
+        shutil.rmtree(tmp, ignore_errors=True)
 
 
 def test_batch_refuses_a_runaway_scenario_before_running_anything(tmp_path):

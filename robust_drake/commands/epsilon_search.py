@@ -14,7 +14,11 @@ from robust_drake.cli import add_output_flags, format_table, print_json
 
 def register(sub):
     p = sub.add_parser("epsilon-search",
-                       help="JS table 1: smallest boundary layer epsilon without sustained torque vibration")
+                       help="JS table 1: smallest boundary layer epsilon without sustained torque vibration",
+                       description="For each robust controller, simulate the CPT (JS table 2 setting) over a grid of "
+                                   "epsilon values (factors of the published table 1 value) and report the smallest "
+                                   "epsilon without sustained vibration, defined as more than --threshold of the "
+                                   "applied torque's power above --f-cut Hz, beside table 1.")
     p.add_argument("--controllers", default="sp1,sp2,zc,lgplus", help="comma-separated (default sp1,sp2,zc,lgplus)")
     p.add_argument("--factors", default=None,
                    help="comma-separated epsilon / table-1 factors (default 2^(k/2), k = -8..4: 0.0625 .. 4)")
