@@ -198,7 +198,7 @@ def sample_budget(data, n_params: int) -> tuple[float, str | None]:
     Below :data:`MIN_ROWS_PER_PARAM` -> DataError (the fit can match noise exactly and its error
     says nothing); below :data:`WARN_ROWS_PER_PARAM` -> a warning string.
     """
-    from robust_drake.identification.selection import n_effective
+    from robust_drake.model_repair.selection import n_effective
 
     rows = data.n * n_effective(data)
     per = rows / max(n_params, 1)

@@ -46,7 +46,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from robust_drake.identification.residual import ALPHA, _decimation
+from robust_drake.model_repair.residual import ALPHA, _decimation
 
 PEAK_RATIO = 300.0  # peak power / median spectral floor
 MOTION_REL = 1e-2  # velocity power at the peak / its maximum, below which a peak is not the motion's

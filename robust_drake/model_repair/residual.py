@@ -154,7 +154,7 @@ def analyse(data: IdentData, residual: np.ndarray, eta_min: float = ETA_MIN, alp
     ``frequency_hz``, ``drift`` with the coefficients of the first / last third and their times,
     ``dead_band`` with the torque range, ``generalization`` when ``validate_residual`` is given),
     then the state-dependence rows (``test`` = ``state_dependence``: joint, variable, eta2)."""
-    from robust_drake.identification.diagnostics import diagnose
+    from robust_drake.model_repair.diagnostics import diagnose
 
     diag = diagnose(data, residual, validate_residual)
     dep = state_dependence(data, residual)

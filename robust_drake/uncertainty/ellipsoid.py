@@ -51,8 +51,8 @@ import scipy.sparse as sp
 
 from robust_drake.analysis.tolerance import SDP_RTOL, certificate_tol, is_symmetric
 from robust_drake.errors import RobustDrakeError, SolverError
-from robust_drake.identification.lfr import LFR, random_deltas
-from robust_drake.identification.uncertainty import UncertaintyModel
+from robust_drake.uncertainty.lfr import LFR, random_deltas
+from robust_drake.uncertainty.regression import UncertaintyModel
 
 SOLVERS = ("clarabel", "scs", "csdp")
 FORMULATIONS = ("chordal", "full", "energy", "auto")
