@@ -181,7 +181,7 @@ def choose_estimator(inp: Inputs, base: Baseline, opts, log) -> Estimator:
     attenuated LS fit makes the selection chase columns that only mimic the bias): Hausman test,
     then (with the consistent fit and the replay on) the replay of the fit data's motion."""
     from robust_drake.identification import instruments as IV
-    from robust_drake.model_repair.selection import n_effective
+    from robust_drake.identification.data import n_effective
 
     fit = inp.fit
     if not (opts.instruments and fit.filter.cutoff_hz and fit.filter.derivatives != "given"):
