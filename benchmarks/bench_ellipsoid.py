@@ -22,8 +22,8 @@ import numpy as np  # noqa: E402
 
 from robust_drake.errors import RobustDrakeError  # noqa: E402
 from robust_drake.experiments.calafiore import simulate_identification  # noqa: E402
-from robust_drake.identification.ellipsoid import solve_ellipsoid  # noqa: E402
-from robust_drake.identification.uncertainty import CI_BOUNDS, build_uncertainty_model  # noqa: E402
+from robust_drake.uncertainty.ellipsoid import solve_ellipsoid  # noqa: E402
+from robust_drake.uncertainty.regression import CI_BOUNDS, build_uncertainty_model  # noqa: E402
 from robust_drake.regressor import imi_scara_regressor  # noqa: E402
 
 

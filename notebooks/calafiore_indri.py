@@ -92,8 +92,8 @@ plt.show()
 
 # %%
 from robust_drake.experiments.calafiore import torque_reconstruction  # noqa: E402
-from robust_drake.identification.full_rank import check_full_rank  # noqa: E402
-from robust_drake.identification.uncertainty import CI_BOUNDS, build_uncertainty_model  # noqa: E402
+from robust_drake.uncertainty.full_rank import check_full_rank  # noqa: E402
+from robust_drake.uncertainty.regression import CI_BOUNDS, build_uncertainty_model  # noqa: E402
 from robust_drake.regressor import imi_scara_regressor  # noqa: E402
 from robust_drake.experiments.calafiore import simulate_identification  # noqa: E402
 

@@ -35,11 +35,11 @@ import warnings
 import matplotlib.pyplot as plt
 import numpy as np
 
-from robust_drake.identification import residual as R
+from robust_drake.model_repair import residual as R
 from robust_drake.identification.data import DataWarning, load
 from robust_drake.identification.least_squares import load_regressor
-from robust_drake.identification.repair import RepairOptions, run_repair, run_repair_demo
-from robust_drake.identification.selection import ColumnCache, fit_model, predict_tau
+from robust_drake.model_repair.pipeline import RepairOptions, run_repair, run_repair_demo
+from robust_drake.model_repair.selection import ColumnCache, fit_model, predict_tau
 
 warnings.simplefilter("ignore", DataWarning)
 SHORT = os.environ.get("ROBUST_DRAKE_SHORT") == "1"
@@ -62,7 +62,7 @@ if HAVE_DATA:
     val_files = sorted(glob.glob(os.path.join(C1, "20230629-154*.csv")))
     torque = "tau_meas"
 else:
-    from robust_drake.identification.simulated import hidden_effect_case
+    from robust_drake.model_repair.simulated import hidden_effect_case
 
     f, v, truth = hidden_effect_case("stribeck", out_dir=OUT)
     robot, fit_files, val_files, torque = truth["robot"], [f], [v], "tau_meas"

@@ -20,7 +20,7 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers only
     import pandas as pd
 
     from robust_drake.diagram import ClosedLoop, ClosedLoopConfig, SimulationResult
-    from robust_drake.identification.ellipsoid import EllipsoidResult
+    from robust_drake.uncertainty.ellipsoid import EllipsoidResult
     from robust_drake.scenario import Scenario
 
 
@@ -210,8 +210,8 @@ def repair(fit: str | Sequence[str], robot: str, *, validate: str | Sequence[str
         per joint, ``effects`` added, ``unexplained_structure``, ``warnings``, ...
     """
     from robust_drake.identification.data import DEFAULT_CUTOFF_HZ
-    from robust_drake.identification.repair import RepairOptions, run_repair
-    from robust_drake.identification.selection import MIN_GAIN
+    from robust_drake.model_repair.pipeline import RepairOptions, run_repair
+    from robust_drake.model_repair.selection import MIN_GAIN
     from robust_drake.log import progress_callback
 
     fits = [fit] if isinstance(fit, (str, os.PathLike)) else list(fit)

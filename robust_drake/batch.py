@@ -393,6 +393,45 @@ def read_results(path: str | os.PathLike):
 # ------------------------------------------------------------------------------- the batch
 
 
+def _done_rows(store, retry_failed: bool) -> dict[str, dict]:
+    """Rows already in ``store`` that this run skips, by scenario id (``failed`` ones too
+    unless ``retry_failed``). Closes the store if it cannot be read."""
+    import pandas as pd
+
+    try:
+        previous = store.read() if store is not None else pd.DataFrame()
+    except BaseException:
+        store.close()
+        raise
+    done_rows: dict[str, dict] = {}
+    if len(previous):
+        skip_status = {"ok", "diverged"} if retry_failed else set(STATUSES)
+        for rec in previous.to_dict("records"):
+            if rec.get("status") in skip_status:
+                done_rows[rec["scenario_id"]] = rec
+    return done_rows
+
+
+def _run_todo(todo: list[Scenario], options: dict, new_rows: dict[str, dict], store, *, workers,
+              scheduler, progress: bool, flush_seconds: float, on_row) -> None:
+    """Run ``todo`` in parallel; each row goes into ``new_rows`` (filled in place, so the caller
+    sees the rows done before an interrupt), the store and ``on_row`` as it arrives."""
+    by_id = {s.id: s for s in todo}
+    items = [(s.to_dict(), options) for s in todo]
+    for outcome in iter_parallel(_task, items, keys=[s.id for s in todo], workers=workers,
+                                 scheduler=scheduler, desc="batch", progress=progress):
+        if outcome.ok:
+            row = outcome.value
+        else:  # the worker died or the task could not run at all
+            row = _failed_row(by_id[outcome.key], outcome.error, outcome.wall_seconds)
+        new_rows[row["scenario_id"]] = row
+        if store is not None:
+            store.append(row)
+            store.maybe_flush(flush_seconds)
+        if on_row is not None:
+            on_row(row)
+
+
 def run_batch(
     scenarios: Iterable[Scenario | dict],
     *,
@@ -439,38 +478,16 @@ def run_batch(
         validate_scenarios(scenarios)
     fingerprint = spec_fingerprint(scenarios)
     store = ResultStore(out, fingerprint, spec, force=force) if out is not None else None
-    try:
-        previous = store.read() if store is not None else pd.DataFrame()
-    except BaseException:
-        store.close()
-        raise
-    done_rows: dict[str, dict] = {}
-    if len(previous):
-        skip_status = {"ok", "diverged"} if retry_failed else set(STATUSES)
-        for rec in previous.to_dict("records"):
-            if rec.get("status") in skip_status:
-                done_rows[rec["scenario_id"]] = rec
+    done_rows = _done_rows(store, retry_failed)
     todo = [s for s in scenarios if s.id not in done_rows]
-    by_id = {s.id: s for s in todo}
     options = {"reuse": reuse, "divergence_error": float(divergence_error)}
     new_rows: dict[str, dict] = {}
     t0 = time.perf_counter()
     interrupted = False
     try:
         if todo:
-            items = [(s.to_dict(), options) for s in todo]
-            for outcome in iter_parallel(_task, items, keys=[s.id for s in todo], workers=workers,
-                                         scheduler=scheduler, desc="batch", progress=progress):
-                if outcome.ok:
-                    row = outcome.value
-                else:  # the worker died or the task could not run at all
-                    row = _failed_row(by_id[outcome.key], outcome.error, outcome.wall_seconds)
-                new_rows[row["scenario_id"]] = row
-                if store is not None:
-                    store.append(row)
-                    store.maybe_flush(flush_seconds)
-                if on_row is not None:
-                    on_row(row)
+            _run_todo(todo, options, new_rows, store, workers=workers, scheduler=scheduler,
+                      progress=progress, flush_seconds=flush_seconds, on_row=on_row)
     except KeyboardInterrupt:
         interrupted = True
         raise

@@ -48,6 +48,7 @@ import pathlib
 from dataclasses import dataclass, field, fields
 
 from robust_drake.errors import RobustDrakeError
+from robust_drake.robots_dir import models_dir, packaged_models_dir
 
 __all__ = ["RobotDescription", "DEFAULT", "describe", "description_path", "load_description",
            "packaged_descriptions"]
@@ -189,10 +190,8 @@ def load_description(path) -> RobotDescription:
 
 def description_path(robot) -> pathlib.Path | None:
     """The description file of ``robot`` (name or URDF path), or None if it has none."""
-    from robust_drake.models import ROBOTS, packaged_models_dir, models_dir
-
     text = os.fspath(robot)
-    if text in ROBOTS:  # ROBUST_DRAKE_MODELS may hold its own description, else the packaged one
+    if text in {d.name for d in packaged_descriptions(packaged_models_dir())}:  # ROBUST_DRAKE_MODELS may hold its own description, else the packaged one
         p = models_dir() / f"{text}.yaml"
         p = p if p.is_file() else packaged_models_dir() / f"{text}.yaml"
     elif text.endswith((".urdf", ".sdf")):

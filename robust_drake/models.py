@@ -24,7 +24,6 @@ for the derivation of l1 = l2 = 0.30 m.
 
 from __future__ import annotations
 
-import importlib.resources
 import logging
 import math
 import os
@@ -34,7 +33,9 @@ from typing import Callable
 
 import numpy as np
 
+from robust_drake.description import packaged_descriptions
 from robust_drake.errors import RobustDrakeError
+from robust_drake.robots_dir import MODELS_DIR, models_dir, packaged_models_dir  # noqa: F401  (re-exported)
 
 __all__ = [
     "MODELS_DIR",
@@ -55,24 +56,6 @@ __all__ = [
     "d2r2_theta_from_plant",
     "set_d2r2_theta",
 ]
-
-
-def _packaged_models_dir() -> pathlib.Path:
-    """The URDF folder inside the installed package (``robust_drake/robots``).
-
-    Package data of a regular (not zipped) install is a real folder, so the Traversable that
-    ``importlib.resources`` returns is a path Drake's parser can open."""
-    return pathlib.Path(os.fspath(importlib.resources.files("robust_drake").joinpath("robots")))
-
-
-_DEFAULT_MODELS_DIR = _packaged_models_dir()
-MODELS_DIR: pathlib.Path = pathlib.Path(os.environ.get("ROBUST_DRAKE_MODELS", _DEFAULT_MODELS_DIR))
-
-
-def models_dir() -> pathlib.Path:
-    """The models folder, re-reading ``ROBUST_DRAKE_MODELS`` at call time."""
-    env = os.environ.get("ROBUST_DRAKE_MODELS")
-    return pathlib.Path(env) if env else MODELS_DIR
 
 
 @dataclass(frozen=True)
@@ -98,20 +81,13 @@ class ArmSpec:
 D2R2_TORQUE_LIMIT = 31.2  # N m, JS section 1 (+-8 V command, Compumotor DM1015-B)
 
 
-def packaged_models_dir() -> pathlib.Path:
-    """The shipped ``robust_drake/robots`` folder (URDFs and robot descriptions)."""
-    return _DEFAULT_MODELS_DIR
-
-
 def _named_robots() -> dict[str, ArmSpec]:
     """One :class:`ArmSpec` per shipped robot description (``robots/<name>.yaml``, see
     :mod:`robust_drake.description`)."""
-    from robust_drake.description import packaged_descriptions
-
     return {d.name: ArmSpec(name=d.name, urdf=d.urdf, n=d.n, link_lengths=d.link_lengths,
                             gravity=d.gravity, plane=d.plane, loads=dict(d.loads),
                             description=d.summary, torque_limits=d.torque_limits)
-            for d in packaged_descriptions(_DEFAULT_MODELS_DIR)}
+            for d in packaged_descriptions(packaged_models_dir())}
 
 
 #: The named robots, read from the shipped descriptions (d2r2, imi_scara, siciliano_2link,

@@ -10,7 +10,7 @@ Two uncertainty sets:
   ``ClosedLoopConfig.true_theta`` (applied by :func:`robust_drake.models.set_d2r2_theta`).
 * ``imi_scara``: a confidence ellipsoid E(P, theta0) = {theta : (theta - theta0)^T P^-1
   (theta - theta0) <= 1} of Calafiore & Indri (CI eq. 10; JSON with keys ``theta0`` and ``P``
-  as written by :mod:`robust_drake.identification.ellipsoid`). Draws are theta0 + P^(1/2) z
+  as written by :mod:`robust_drake.uncertainty.ellipsoid`). Draws are theta0 + P^(1/2) z
   with z uniform in the unit ball (inside) or on the unit sphere (boundary). theta has CI's 8
   entries (4 inertial, then Coulomb/viscous friction of both joints); a draw that no rigid
   body can realise (e.g. Gamma2z <= m2 |s2|^2) is rejected and counted, never silently

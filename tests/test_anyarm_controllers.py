@@ -284,7 +284,7 @@ def test_sp1_on_the_panda_beats_pd_with_friction_encoder_and_saturation(panda_ru
 def test_calafiore_takes_an_identified_ellipsoid_file(tmp_path):
     """An ellipsoid JSON (theta0, P) on the URDF's base parameters is used as is: the controller's
     theta0 and E E^T are the file's; giving both a file and P is refused."""
-    from robust_drake.identification.ellipsoid import Ellipsoid
+    from robust_drake.uncertainty.ellipsoid import Ellipsoid
     from robust_drake.systems.controllers.calafiore_indri import make_calafiore
 
     reg = InverseDynamicsRegressor.from_robot("siciliano_2link")

@@ -128,7 +128,7 @@ def test_section_5_2_robust_term_reduces_transient_error():
 # ------------------------------------------------------------------ CI section 3: full-rank certificate
 def test_full_rank_lmi_is_exact_on_a_scalar_and_rejects_a_reachable_zero():
     """D(delta) = d + l delta r, |delta| <= 1: full rank iff |d| > |l r|, with min |D| = |d| - |l r|."""
-    from robust_drake.identification.full_rank import full_rank_lmi, schur_mu
+    from robust_drake.uncertainty.full_rank import full_rank_lmi, schur_mu
 
     s, mu, _ = full_rank_lmi([[1.0]], [[0.5]], [[1.0]], [0])
     assert np.sqrt(mu) == pytest.approx(0.5, abs=1e-4)          # min over delta of |1 + 0.5 delta|
@@ -138,7 +138,7 @@ def test_full_rank_lmi_is_exact_on_a_scalar_and_rejects_a_reachable_zero():
 
 def _ci_model(n, bounds=None, seed=0):
     from robust_drake.experiments.calafiore import simulate_identification
-    from robust_drake.identification.uncertainty import CI_BOUNDS, build_uncertainty_model
+    from robust_drake.uncertainty.regression import CI_BOUNDS, build_uncertainty_model
 
     d = simulate_identification(n, seed)
     return build_uncertainty_model(imi_scara_regressor, d["q"], d["qd"], d["qdd"], d["tau"],
@@ -148,8 +148,8 @@ def _ci_model(n, bounds=None, seed=0):
 def test_full_rank_certificate_holds_on_every_sampled_delta():
     """CI's n_m = 5 setup is certified, and the certified bound is a true lower bound of sigma_min(D(delta))
     at box vertices and random points (the bound is checked, not recomputed)."""
-    from robust_drake.identification.full_rank import check_full_rank
-    from robust_drake.identification.lfr import random_deltas
+    from robust_drake.uncertainty.full_rank import check_full_rank
+    from robust_drake.uncertainty.lfr import random_deltas
 
     model = _ci_model(5)
     res = check_full_rank(model, draws=50)
@@ -160,7 +160,7 @@ def test_full_rank_certificate_holds_on_every_sampled_delta():
 
 
 def test_full_rank_not_certified_when_the_acceleration_noise_can_cancel_the_regressor():
-    from robust_drake.identification.full_rank import check_full_rank
+    from robust_drake.uncertainty.full_rank import check_full_rank
 
     model = _ci_model(5, bounds={"tau": [4.6, 0.55], "qdd": [60.0, 60.0]})
     assert check_full_rank(model, draws=500).verdict in ("refuted", "undecided")

@@ -24,7 +24,7 @@ DURATION = 8.0
 
 
 def _sim(robot, rate_hz, seed, duration=DURATION):
-    from robust_drake.identification.simulated import simulate_experiment
+    from robust_drake.model_repair.simulated import simulate_experiment
 
     if robot == ARM7:
         return simulate_experiment(robot, duration=duration, rate_hz=rate_hz, seed=seed,
@@ -143,7 +143,7 @@ def arm2(tmp_path_factory):
 
 
 def _identify(paths, robot, reg, val_path):
-    from robust_drake.identification.selection import ColumnCache, fit_model, predict_tau
+    from robust_drake.model_repair.selection import ColumnCache, fit_model, predict_tau
 
     d, msgs = _load(paths, robot=robot, n_joints=reg.n)
     v, _ = _load(val_path, robot=robot, n_joints=reg.n)
@@ -225,7 +225,7 @@ def test_instrument_load_keeps_the_rows_for_files_of_many_lengths(tmp_path):
 def test_repair_runs_on_jittered_gappy_files_of_unequal_length(arm2, tmp_path):
     """The whole repair with instruments on (the crash path) on damaged files of unequal lengths:
     no crash, the conditioning warnings reach report.json."""
-    from robust_drake.identification.repair import RepairOptions, run_repair
+    from robust_drake.model_repair.pipeline import RepairOptions, run_repair
 
     robot, files, reg = arm2
     a = pd.read_csv(files["gaps"]).iloc[:5001]
@@ -241,7 +241,7 @@ def test_repair_runs_on_jittered_gappy_files_of_unequal_length(arm2, tmp_path):
 
 # ----------------------------------------------------------------------------- velocities
 def test_logged_velocities(tmp_path):
-    from robust_drake.identification.simulated import simulate_experiment
+    from robust_drake.model_repair.simulated import simulate_experiment
 
     df = simulate_experiment(ARM2, duration=6.0, rate_hz=500.0, seed=2, include_velocity=True)
     p = _write(df, tmp_path / "v.csv")

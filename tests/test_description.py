@@ -82,7 +82,7 @@ def test_d2r2_description_holds_the_paper_numbers():
 
 
 def test_plausibility_quotes_the_description(tmp_path):
-    from robust_drake.identification.repair import plausibility
+    from robust_drake.model_repair.pipeline import plausibility
 
     path = _user_arm(tmp_path)
     txt = plausibility("rotor_inertia", {"reflected_inertia": 0.008}, path)

@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 from robust_drake.errors import RobustDrakeError, SolverError
-from robust_drake.identification.ellipsoid import Ellipsoid, certify, solve_ellipsoid
-from robust_drake.identification.lfr import random_deltas
-from robust_drake.identification.uncertainty import CI_BOUNDS, UncertaintyModel, build_uncertainty_model
+from robust_drake.uncertainty.ellipsoid import Ellipsoid, certify, solve_ellipsoid
+from robust_drake.uncertainty.lfr import random_deltas
+from robust_drake.uncertainty.regression import CI_BOUNDS, UncertaintyModel, build_uncertainty_model
 from robust_drake.regressor import imi_scara_regressor
 
 
@@ -98,7 +98,7 @@ def test_certificate_catches_a_too_small_ellipsoid_and_unbounded_sets_fail():
     # before the SDP with the reason, and a solver handed the SDP anyway fails loudly (SolverError)
     with pytest.raises(RobustDrakeError, match="rank 1 < 2 parameters"):
         solve_ellipsoid(_toy(K=1), formulation="chordal")
-    from robust_drake.identification.ellipsoid import _scaled_model, _solve_cvxpy, build_chordal_sdp
+    from robust_drake.uncertainty.ellipsoid import _scaled_model, _solve_cvxpy, build_chordal_sdp
 
     data = build_chordal_sdp(_scaled_model(_toy(K=1))[0], np.ones(2))
     with pytest.raises(SolverError):

@@ -24,10 +24,10 @@ import math
 import numpy as np
 import pytest
 
-from robust_drake.identification.effects import DIAGNOSTIC_KINDS, EFFECTS, make_effect
-from robust_drake.identification.simulated import HIDDEN_CASES, hidden_effect_case
+from robust_drake.model_repair.effects import DIAGNOSTIC_KINDS, EFFECTS, make_effect
+from robust_drake.model_repair.simulated import HIDDEN_CASES, hidden_effect_case
 
-repair = pytest.importorskip("robust_drake.identification.repair")
+repair = pytest.importorskip("robust_drake.model_repair.pipeline")
 
 # Cost note: ~45-60 s on one core with single-threaded BLAS (``make test`` exports
 # OPENBLAS_NUM_THREADS=1). Run directly, export it too: multi-threaded OpenBLAS on a busy 2-core
@@ -149,7 +149,7 @@ def test_undeclared_sensor_vibration_is_caught_by_the_estimator_test(tmp_path_fa
     instrumental variables, land within 3 % of the true inertial parameters, claim no torque
     effect for it, and replay the validation motion far better."""
     from robust_drake.identification.least_squares import load_regressor
-    from robust_drake.identification.simulated import hidden_effect_case
+    from robust_drake.model_repair.simulated import hidden_effect_case
 
     out = tmp_path_factory.mktemp("hidden_vibration")
     fit, val, truth = hidden_effect_case("sensor_vibration", seed=0, out_dir=str(out), vibration_rms=1e-3)

@@ -5,14 +5,14 @@ import warnings
 import numpy as np
 import pytest
 
-from robust_drake.identification import residual as R
+from robust_drake.model_repair import residual as R
 from robust_drake.identification.consistency import consistent_identification, pseudo_inertia
 from robust_drake.identification.data import DataWarning, FilterSettings, IdentData
-from robust_drake.identification.effects import make_effect
+from robust_drake.model_repair.effects import make_effect
 from robust_drake.identification.least_squares import (
     COND_WARN, friction_columns, load_regressor, solve_ls, solve_wls,
 )
-from robust_drake.identification.selection import ColumnCache, fit_model, forward_select, predict_tau
+from robust_drake.model_repair.selection import ColumnCache, fit_model, forward_select, predict_tau
 
 ROBOT = "dfki_double_pendulum_c1"
 
@@ -187,10 +187,10 @@ def test_replay_through_drake_plant_matches_simulated_motion():
     """Data from the simulated arm: replaying its torques through a plant with the true friction
     reproduces the motion; leaving the friction out does not."""
     from robust_drake.identification.data import load
-    from robust_drake.identification.replay import replay
+    from robust_drake.model_repair.replay import replay
     import tempfile, os
 
-    from robust_drake.identification.simulated import simulate_experiment
+    from robust_drake.model_repair.simulated import simulate_experiment
 
     with tempfile.TemporaryDirectory() as tmp:
         path = os.path.join(tmp, "x.csv")

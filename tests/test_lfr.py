@@ -5,7 +5,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from robust_drake.errors import RobustDrakeError
-from robust_drake.identification.lfr import LFR, lfr_from_affine, lfr_product, lfr_sum, random_deltas
+from robust_drake.uncertainty.lfr import LFR, lfr_from_affine, lfr_product, lfr_sum, random_deltas
 
 
 def _affine(rng, a, b, N, rank=None):

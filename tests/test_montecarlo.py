@@ -69,7 +69,7 @@ def test_ellipsoid_samples_inside_and_on_the_boundary():
     cov = np.cov((pts[1000:] - theta0).T)
     np.testing.assert_allclose(np.diag(cov), np.diag(P) / (m + 2), rtol=0.15)
     try:  # same convention as the identification engineer's Ellipsoid, if present
-        from robust_drake.identification.ellipsoid import Ellipsoid
+        from robust_drake.uncertainty.ellipsoid import Ellipsoid
     except ImportError:
         return
     np.testing.assert_allclose(Ellipsoid(theta0, P).radius(pts[:50]), r[:50], rtol=1e-9)

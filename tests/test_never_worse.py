@@ -11,14 +11,14 @@ every joint within the stated tolerance of the baseline.
 import numpy as np
 import pytest
 
-from robust_drake.identification.simulated import DEFAULT_ROBOT, PeriodicDisturbance, simulate_experiment
+from robust_drake.model_repair.simulated import DEFAULT_ROBOT, PeriodicDisturbance, simulate_experiment
 
 CASES = {"3Hz_joint1": ((0.0, 0.1), 3.0), "0.4Hz_both": ((0.06, 0.06), 0.4)}
 
 
 @pytest.fixture(scope="module", params=sorted(CASES))
 def repaired(request, tmp_path_factory):
-    from robust_drake.identification.repair import RepairOptions, run_repair
+    from robust_drake.model_repair.pipeline import RepairOptions, run_repair
 
     amp, f = CASES[request.param]
     out = tmp_path_factory.mktemp("never_worse")

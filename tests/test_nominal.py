@@ -1,11 +1,11 @@
-"""The nominal-model comparison (identification/nominal.py) on its own: span detection,
+"""The nominal-model comparison (model_repair/nominal.py) on its own: span detection,
 shift projection, and the torque_scale joint choice, without the repair pipeline."""
 
 import numpy as np
 import pytest
 
-from robust_drake.identification import nominal as NM
-from robust_drake.identification.effects import equivalent_gain_error, make_effect
+from robust_drake.model_repair import nominal as NM
+from robust_drake.model_repair.effects import equivalent_gain_error, make_effect
 from robust_drake.identification.least_squares import load_regressor
 
 ROBOT = "dfki_double_pendulum_c1"

@@ -23,11 +23,11 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from robust_drake.identification import diagnostics as D
-from robust_drake.identification.effects import DIAGNOSTIC_KINDS, all_candidates, make_effect
-from robust_drake.identification.simulated_cases import outside_case
+from robust_drake.model_repair import diagnostics as D
+from robust_drake.model_repair.effects import DIAGNOSTIC_KINDS, all_candidates, make_effect
+from robust_drake.model_repair.simulated_cases import outside_case
 
-repair = pytest.importorskip("robust_drake.identification.repair")
+repair = pytest.importorskip("robust_drake.model_repair.pipeline")
 
 ROBOTS = ["dfki_double_pendulum_a0", "siciliano_2link",
           pytest.param("serial7", marks=pytest.mark.slow)]  # 7 joints: ~15-25 s per repair
@@ -138,7 +138,7 @@ def test_diagnostic_kinds_are_offered_only_where_a_diagnostic_fired():
 def _fit_diagnostic_kinds(fit_csv, robot):
     from robust_drake.identification.data import load
     from robust_drake.identification.least_squares import load_regressor
-    from robust_drake.identification.selection import ColumnCache, fit_model
+    from robust_drake.model_repair.selection import ColumnCache, fit_model
 
     data = load(fit_csv, robot=robot)
     cache = ColumnCache(data, load_regressor(robot))
@@ -295,7 +295,7 @@ def test_selection_given_the_diagnostic_candidates_names_the_outside_effect(case
     misattributed, and no joint's validation gets worse (A.0 cases)."""
     from robust_drake.identification.data import load
     from robust_drake.identification.least_squares import load_regressor
-    from robust_drake.identification.selection import ColumnCache, fit_model, forward_select, predict_tau
+    from robust_drake.model_repair.selection import ColumnCache, fit_model, forward_select, predict_tau
 
     robot = ROBOTS[0]
     fit, val, truth = _case(robot, case, tmp_path_factory)
@@ -316,7 +316,7 @@ def test_selection_given_the_diagnostic_candidates_names_the_outside_effect(case
 
 
 def test_admissibility_of_the_new_kinds():
-    from robust_drake.identification.effects import admissible
+    from robust_drake.model_repair.effects import admissible
 
     dz = make_effect("dead_zone", 1, threshold=0.1)
     assert admissible(dz, {"share": 0.95}) == ""

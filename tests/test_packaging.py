@@ -127,7 +127,7 @@ def test_top_level_models_is_the_packaged_folder():
 
 
 def _tiny_model():
-    from robust_drake.identification.uncertainty import UncertaintyModel
+    from robust_drake.uncertainty.regression import UncertaintyModel
 
     co = np.zeros((1, 1, 1, 2))
     co[0, 0, 0, 1] = 1.0
@@ -136,7 +136,7 @@ def _tiny_model():
 
 @pytest.mark.parametrize("module, backend", [("cvxpy", "cvxpy"), ("clarabel", "direct")])
 def test_missing_cvxpy_extra_is_named(monkeypatch, module, backend):
-    from robust_drake.identification.ellipsoid import solve_ellipsoid
+    from robust_drake.uncertainty.ellipsoid import solve_ellipsoid
 
     monkeypatch.setitem(sys.modules, module, None)  # as if not installed
     with pytest.raises(RobustDrakeError, match=r"needs the 'cvxpy' extra: pip install 'robust_drake\[cvxpy\]'"):
@@ -159,8 +159,8 @@ import json, sys
 for m in ("cvxpy", "clarabel", "scs", "dask", "distributed"):
     sys.modules[m] = None
 import numpy as np
-from robust_drake.identification.ellipsoid import solve_ellipsoid
-from robust_drake.identification.uncertainty import UncertaintyModel
+from robust_drake.uncertainty.ellipsoid import solve_ellipsoid
+from robust_drake.uncertainty.regression import UncertaintyModel
 from robust_drake.diagram import ClosedLoopConfig, simulate
 co = np.zeros((1, 1, 1, 2)); co[0, 0, 0, 1] = 1.0
 M = UncertaintyModel(np.ones((1, 1, 1)), np.full((1, 1), 2.0), co, ["tau1"], np.array([1.0]))

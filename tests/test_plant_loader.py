@@ -101,8 +101,8 @@ def test_ros_urdf_simulates_in_the_closed_loop(tmp_path):
 
 
 def test_ros_urdf_repairs(tmp_path):
-    from robust_drake.identification import repair
-    from robust_drake.identification.simulated import simulate_experiment
+    from robust_drake.model_repair import pipeline as repair
+    from robust_drake.model_repair.simulated import simulate_experiment
 
     path = _urdf(tmp_path)
     fit, val = str(tmp_path / "fit.csv"), str(tmp_path / "val.csv")

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from robust_drake import cli
-from robust_drake.identification.effects import EFFECTS
+from robust_drake.model_repair.effects import EFFECTS
 
 DFKI = os.path.join(os.environ.get("ROBUST_DRAKE_DATA")
                     or os.path.join(os.path.dirname(__file__), "..", "..", "shared", "data"), "dfki_double_pendulum")
@@ -91,7 +91,7 @@ def test_c1_regressor_noise_is_detected_and_removed(c1_report):
 
 def _ls_shift_chi2(rep):
     from robust_drake.identification.least_squares import load_regressor
-    from robust_drake.identification.nominal import chi2, shift_weights
+    from robust_drake.model_repair.nominal import chi2, shift_weights
 
     reg = load_regressor(rep["robot"])
     th0 = reg.base_parameters()
@@ -192,9 +192,9 @@ def test_c1_joint0_friction_lags_at_reversals_presliding_friction(x0):
     planetary QDD joint has (< 0.5 N m). Joint 1 is not improved by it (nor by any library
     effect, see BUILD_NOTES "Identification and repair", 2026-11-21 second pass)."""
     from robust_drake.identification.data import load
-    from robust_drake.identification.effects import make_effect
+    from robust_drake.model_repair.effects import make_effect
     from robust_drake.identification.least_squares import load_regressor, solve_wls
-    from robust_drake.identification.selection import ColumnCache, fit_model, predict_tau
+    from robust_drake.model_repair.selection import ColumnCache, fit_model, predict_tau
 
     robot = "dfki_double_pendulum_c1"
     reg = load_regressor(robot)
@@ -225,7 +225,7 @@ def test_cli_rejects_bad_input_with_a_message(tmp_path, capsys):
 
 
 def test_demo_finds_the_hidden_effect_and_replay_improves(tmp_path):
-    from robust_drake.identification.repair import run_repair_demo
+    from robust_drake.model_repair.pipeline import run_repair_demo
 
     rep = run_repair_demo(str(tmp_path), progress=None)
     truth = rep["truth"]
@@ -239,7 +239,7 @@ def test_demo_finds_the_hidden_effect_and_replay_improves(tmp_path):
     assert os.path.exists(tmp_path / "report.md")
     # the report's effects become plant-side blocks for a closed-loop diagram; the Stribeck block
     # opposes motion on its joint and is largest at low speed
-    from robust_drake.identification.repair import closed_loop_effects, effects_from_report
+    from robust_drake.model_repair.pipeline import closed_loop_effects, effects_from_report
 
     blocks = [f(type("Ctx", (), {"n": 2})()) for f in closed_loop_effects(rep)]
     assert len(blocks) == 1 and blocks[0].HasInputPort("state")

@@ -91,7 +91,7 @@ def plot_study(out, directory):
 
 def run(args) -> int:
     from robust_drake.experiments.calafiore import run_study
-    from robust_drake.identification.ellipsoid import Ellipsoid
+    from robust_drake.uncertainty.ellipsoid import Ellipsoid
 
     theta0 = P = None
     if args.ellipsoid:

@@ -65,10 +65,10 @@ def register(subparsers) -> None:
 def run(args) -> int:
     from robust_drake.errors import RobustDrakeError
     from robust_drake.identification.data import DEFAULT_CUTOFF_HZ
-    from robust_drake.identification.effects import EFFECTS
-    from robust_drake.identification.repair import RepairOptions, run_repair
-    from robust_drake.identification.report import signal
-    from robust_drake.identification.selection import MIN_GAIN
+    from robust_drake.model_repair.effects import EFFECTS
+    from robust_drake.model_repair.pipeline import RepairOptions, run_repair
+    from robust_drake.model_repair.report import signal
+    from robust_drake.model_repair.selection import MIN_GAIN
 
     kinds = None
     if args.effects:

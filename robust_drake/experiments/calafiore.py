@@ -66,7 +66,7 @@ def d_optimal_indices(D, count: int) -> np.ndarray:
 def simulate_identification(n_samples: int, seed: int = 0, bounds=None, theta_true=None, duration: float = 20.0,
                             grid: int = 4000):
     """Measured samples (q, qd, qdd, tau) with noise within ``bounds`` (default CI_BOUNDS)."""
-    from robust_drake.identification.uncertainty import CI_BOUNDS
+    from robust_drake.uncertainty.regression import CI_BOUNDS
     from robust_drake.regressor import imi_scara_regressor
 
     bounds = CI_BOUNDS if bounds is None else bounds
@@ -87,8 +87,8 @@ def simulate_identification(n_samples: int, seed: int = 0, bounds=None, theta_tr
 def run_ellipsoid_experiment(n_samples: int = 5, solver: str = "clarabel", seed: int = 0, backend: str = "drake",
                              formulation: str = "chordal", draws: int = 1000, bounds=None, data=None) -> dict:
     """Identification -> uncertainty model -> SDP -> certificate; the ``robust-drake ellipsoid`` JSON."""
-    from robust_drake.identification.ellipsoid import result_to_dict, solve_ellipsoid
-    from robust_drake.identification.uncertainty import CI_BOUNDS, build_uncertainty_model
+    from robust_drake.uncertainty.ellipsoid import result_to_dict, solve_ellipsoid
+    from robust_drake.uncertainty.regression import CI_BOUNDS, build_uncertainty_model
     from robust_drake.regressor import imi_scara_regressor
 
     bounds = CI_BOUNDS if bounds is None else bounds
@@ -108,7 +108,7 @@ def run_ellipsoid_experiment(n_samples: int = 5, solver: str = "clarabel", seed:
     out["theta_ls"] = np.linalg.lstsq(model.D0.reshape(-1, model.n_params), model.tau0.reshape(-1),
                                       rcond=None)[0].tolist()
     # CI section 3: the stacked regressor must keep full column rank for every admissible delta
-    from robust_drake.identification.full_rank import check_full_rank
+    from robust_drake.uncertainty.full_rank import check_full_rank
     out["full_rank"] = check_full_rank(model, draws=200, seed=seed).to_dict()
     out["_result"] = res
     return out
@@ -208,7 +208,7 @@ def torque_reconstruction(theta0=None, n_samples: int = 5, seed: int = 0, durati
     section 5.1 theta0 can be passed instead. Returns the dense signals, the n_m identification samples,
     and the RMS reconstruction error per joint against the measured and the noise-free torques.
     """
-    from robust_drake.identification.uncertainty import CI_BOUNDS
+    from robust_drake.uncertainty.regression import CI_BOUNDS
     from robust_drake.regressor import imi_scara_regressor
 
     ident = simulate_identification(n_samples, seed, duration=duration)
@@ -240,7 +240,7 @@ def run_study(theta0=None, P=None, n_true: int = 3, duration: float | None = Non
     judged on ``settling_time_rel`` (see :func:`tracking_stats`): True when the robust law settles
     later than the nominal one on both joints (a joint that has not settled counts as later)."""
     from robust_drake.diagram import ClosedLoopConfig, simulate
-    from robust_drake.identification.ellipsoid import Ellipsoid
+    from robust_drake.uncertainty.ellipsoid import Ellipsoid
     from robust_drake.regressor import IMI_P, IMI_THETA0
     from robust_drake.systems.controllers.calafiore_indri import IMI_K, IMI_LAMBDA
 

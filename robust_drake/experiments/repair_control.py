@@ -4,7 +4,7 @@
    (``position_dependent``: a direct-drive motor's torque ripple, 4 cycles per revolution)
    on top of its Coulomb + viscous friction runs an exciting experiment; fit and validation
    CSVs are written (canonical columns ``t, q1, q2, tau1, tau2``).
-2. :func:`robust_drake.identification.repair.run_repair` fits the baseline model (rigid body +
+2. :func:`robust_drake.model_repair.pipeline.run_repair` fits the baseline model (rigid body +
    Coulomb + viscous), examines the residual, adds the effects that explain it, and reports
    the validation error before and after.
 3. The identified models become model-based compensation inside Spong's robust controller
@@ -26,17 +26,17 @@ TRUE_EFFECT = ("position_dependent", 1, {"amplitude": 0.6, "phase": 0.5, "harmon
 
 def model_feedforward(report: dict, stage: str = "final"):
     """``f(q, v) -> torques`` [N m] of the identified model ``stage`` ("baseline" or "final"):
-    :meth:`~robust_drake.identification.model.IdentifiedModel.feedforward` of the model the
+    :meth:`~robust_drake.model_repair.model.IdentifiedModel.feedforward` of the model the
     repair report carries (friction ``fc_j sgn(v_j) + fv_j v_j`` plus, for the final model, the
     effects a controller can compute from (q, v); the others are listed in ``skipped``)."""
-    from robust_drake.identification.model import IdentifiedModel
+    from robust_drake.model_repair.model import IdentifiedModel
 
     return IdentifiedModel.from_report(report, stage).feedforward()
 
 
 def true_arm_effects():
     """Plant-side blocks of the hidden effect, for :class:`~robust_drake.diagram.ClosedLoopConfig`."""
-    from robust_drake.identification.effects import make_effect
+    from robust_drake.model_repair.effects import make_effect
 
     kind, joint, p = TRUE_EFFECT
     eff = make_effect(kind, joint, harmonic=p["harmonic"])
@@ -46,7 +46,7 @@ def true_arm_effects():
 
 def generate_experiment(out_dir, duration=12.0, seeds=(0, 1)):
     """Write fit.csv and validate.csv of the true D2R2 (hidden cogging) into ``out_dir``."""
-    from robust_drake.identification.simulated import simulate_experiment
+    from robust_drake.model_repair.simulated import simulate_experiment
     from robust_drake.systems.friction import D2R2_COULOMB, D2R2_VISCOUS
     from robust_drake.systems.sensors import D2R2_THETA_M
 
@@ -94,7 +94,7 @@ def run(out_dir, duration=12.0, track_duration=None, trajectories=("cpt", "circl
     """Generate -> repair -> control. Returns {"repair": report, "tracking": rows, "improvement": {...}}.
 
     ``progress(message)`` receives progress lines (None: the ``robust_drake`` logger)."""
-    from robust_drake.identification.repair import RepairOptions, run_repair
+    from robust_drake.model_repair.pipeline import RepairOptions, run_repair
     from robust_drake.log import progress_callback
 
     progress = progress_callback(progress)

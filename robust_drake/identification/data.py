@@ -67,6 +67,8 @@ MAX_ABS_VALUE = 1e6
 #: median sampling period above which the time column "looks like milliseconds" [s] (10 Hz:
 #: slower than any identification log; a 500 Hz log in ms steps by 2.0)
 MAX_SAMPLE_PERIOD_S = 0.1
+#: logged velocity vs derivative of the logged position: slope outside [1/x, x] -> warning
+VELOCITY_SLOPE_TOL = 3.0
 #: a joint whose position range spans at most this many encoder counts is unidentifiable
 FROZEN_MAX_COUNTS = 2
 
@@ -223,6 +225,24 @@ class IdentData:
 
 
 # --------------------------------------------------------------------------- reading
+def n_effective(data: IdentData) -> float:
+    """Effective (independent) samples per joint, N_eff = N min(1, 2 f_c dt): the low-pass at
+    f_c [Hz] leaves about 2 f_c independent samples per second of data sampled every dt [s]."""
+    fc = data.filter.cutoff_hz
+    if fc is None:
+        return float(data.N)
+    return float(data.N) * min(1.0, 2.0 * fc * data.dt)
+
+
+def decimation(data: IdentData) -> int:
+    """Samples per independent sample after the low-pass, round(1 / (2 f_c dt)) (>= 1): N /
+    decimation is the effective count the residual tests use."""
+    fc = data.filter.cutoff_hz
+    if fc is None:
+        return 1
+    return max(1, int(round(1.0 / (2.0 * fc * data.dt))))
+
+
 def _numbered(columns: list[str], prefix: str) -> list[str]:
     """Columns ``prefix1, prefix2, ...`` in index order (stops at the first gap)."""
     out, i = [], 1
@@ -358,18 +378,9 @@ def write_canonical_csv(path, t, q, tau, qd=None, qdd=None) -> str:
 
 
 # --------------------------------------------------------------------------- validation
-def validate_raw(raw: RawData, n_joints: int | None = None, allow_degrees: bool = False) -> dict:
-    """Check one file; raise :class:`DataError` on anything unusable. Returns timing stats.
-
-    Returns ``{"dt": mean step, "jitter": std(dt)/mean(dt), "max_dt": ..., "warnings": [...]}``.
-    """
+def _check_values(raw: RawData) -> None:
+    """DataError on a NaN/inf or an absurd value (|x| > MAX_ABS_VALUE) in any column."""
     src = raw.source
-    warns: list[str] = []
-    N = len(raw.t)
-    if N < MIN_SAMPLES:
-        raise DataError(f"{src}: only {N} samples; need at least {MIN_SAMPLES}")
-    if n_joints is not None and raw.n != n_joints:
-        raise DataError(f"{src}: {raw.n} joints in the file but the robot has {n_joints}")
     for name in ("t", "q", "tau", "qd", "qdd"):
         a = getattr(raw, name)
         if a is None:
@@ -395,6 +406,12 @@ def validate_raw(raw: RawData, n_joints: int | None = None, allow_degrees: bool 
                 f"(file line {r + 2}): |x| > {MAX_ABS_VALUE:g} in SI units (rad, rad/s, rad/s^2, N m) "
                 f"is no measurement; {int(big.sum())} such values in the file"
             )
+
+
+def _check_time(raw: RawData) -> np.ndarray:
+    """DataError unless time strictly increases in seconds (median step below
+    MAX_SAMPLE_PERIOD_S); returns the steps ``diff(t)`` [s]."""
+    src = raw.source
     dt = np.diff(raw.t)
     if (dt <= 0).any():
         k = int(np.argmax(dt <= 0))
@@ -410,6 +427,41 @@ def validate_raw(raw: RawData, n_joints: int | None = None, allow_degrees: bool 
             f"{1000.0 / dt_med:.3g} Hz). Identification needs a sampling period below "
             f"{MAX_SAMPLE_PERIOD_S:g} s"
         )
+    return dt
+
+
+def velocity_unit_warnings(raw) -> list[str]:
+    """Logged velocity columns against the derivative of the logged positions (same units?)."""
+    if raw.qd is None:
+        return []
+    dq = np.gradient(raw.q, raw.t, axis=0)
+    out = []
+    for j in range(raw.q.shape[1]):
+        den = float(raw.qd[:, j] @ raw.qd[:, j])
+        if den <= 0:
+            continue
+        slope = float(dq[:, j] @ raw.qd[:, j]) / den
+        if not 1.0 / VELOCITY_SLOPE_TOL <= slope <= VELOCITY_SLOPE_TOL:
+            hint = " (positions in degrees, velocities in rad/s?)" if 40 < slope < 80 else ""
+            out.append(f"{os.path.basename(raw.source)}: d(q{j + 1})/dt is {slope:.3g} x the logged "
+                       f"velocity qd{j + 1}{hint}")
+    return out
+
+
+def validate_raw(raw: RawData, n_joints: int | None = None, allow_degrees: bool = False) -> dict:
+    """Check one file; raise :class:`DataError` on anything unusable. Returns timing stats.
+
+    Returns ``{"dt": mean step, "jitter": std(dt)/mean(dt), "max_dt": ..., "warnings": [...]}``.
+    """
+    src = raw.source
+    warns: list[str] = []
+    N = len(raw.t)
+    if N < MIN_SAMPLES:
+        raise DataError(f"{src}: only {N} samples; need at least {MIN_SAMPLES}")
+    if n_joints is not None and raw.n != n_joints:
+        raise DataError(f"{src}: {raw.n} joints in the file but the robot has {n_joints}")
+    _check_values(raw)
+    dt = _check_time(raw)
     jitter = float(np.std(dt) / np.mean(dt))
     # jitter and gaps are handled, not refused: conditioning.py splits at gaps and puts every
     # stretch on a uniform grid (prepare); the messages come from there
@@ -427,8 +479,6 @@ def validate_raw(raw: RawData, n_joints: int | None = None, allow_degrees: bool 
                 "treated as an unpowered joint"
             )
     counts = position_counts(raw.q)
-    from robust_drake.identification.input_checks import velocity_unit_warnings
-
     warns += velocity_unit_warnings(raw)
     peak = np.abs(raw.q).max(axis=0)
     if not allow_degrees and (peak > DEGREE_THRESHOLD_RAD).any():

@@ -36,13 +36,11 @@ SCALE_LOW, SCALE_HIGH = 0.2, 5.0
 #: the scaled URDF model + friction must explain at least this share of the torque variance
 #: (measured on the DFKI logs: 0.66-0.98 per file, both torque columns)
 MIN_EXPLAINED = 0.2
-#: effective samples (N_eff = N * min(1, 2 f_c dt) per joint, selection.n_effective) per
+#: effective samples (N_eff = N * min(1, 2 f_c dt) per joint, data.n_effective) per
 #: identified baseline parameter: below MIN_ROWS_PER_PARAM -> error, below WARN_ROWS_PER_PARAM
 #: -> warning (the fit error then says little about the validation error)
 MIN_ROWS_PER_PARAM = 5.0
 WARN_ROWS_PER_PARAM = 20.0
-#: logged velocity vs derivative of the logged position: slope outside [1/x, x] -> warning
-VELOCITY_SLOPE_TOL = 3.0
 
 
 def _digest(path: str) -> str:
@@ -174,31 +172,13 @@ def torque_scale_check(data, regressor) -> tuple[dict, list[str]]:
     return {"scale": s, "explained": explained}, warns
 
 
-def velocity_unit_warnings(raw) -> list[str]:
-    """Logged velocity columns against the derivative of the logged positions (same units?)."""
-    if raw.qd is None:
-        return []
-    dq = np.gradient(raw.q, raw.t, axis=0)
-    out = []
-    for j in range(raw.q.shape[1]):
-        den = float(raw.qd[:, j] @ raw.qd[:, j])
-        if den <= 0:
-            continue
-        slope = float(dq[:, j] @ raw.qd[:, j]) / den
-        if not 1.0 / VELOCITY_SLOPE_TOL <= slope <= VELOCITY_SLOPE_TOL:
-            hint = " (positions in degrees, velocities in rad/s?)" if 40 < slope < 80 else ""
-            out.append(f"{os.path.basename(raw.source)}: d(q{j + 1})/dt is {slope:.3g} x the logged "
-                       f"velocity qd{j + 1}{hint}")
-    return out
-
-
 def sample_budget(data, n_params: int) -> tuple[float, str | None]:
     """Effective rows per parameter: ``n * N_eff / p`` (N_eff = N min(1, 2 f_c dt)).
 
     Below :data:`MIN_ROWS_PER_PARAM` -> DataError (the fit can match noise exactly and its error
     says nothing); below :data:`WARN_ROWS_PER_PARAM` -> a warning string.
     """
-    from robust_drake.identification.selection import n_effective
+    from robust_drake.identification.data import n_effective
 
     rows = data.n * n_effective(data)
     per = rows / max(n_params, 1)

@@ -20,7 +20,7 @@ Any other URDF arm (n joints): D is the Drake-derived Slotine-Li regressor on th
 (:meth:`robust_drake.regressor.InverseDynamicsRegressor.slotine_li_single`, gravity included;
 eq. 6's D(q, qd, v, a) theta = M a + C v + g), theta0 the URDF's base parameters unless given, and
 the ellipsoid E(P, theta0) (eq. 10) on the base parameters comes from ``P``, an identified
-``ellipsoid`` (JSON path or :class:`~robust_drake.identification.ellipsoid.Ellipsoid`, same base
+``ellipsoid`` (JSON path or :class:`~robust_drake.uncertainty.ellipsoid.Ellipsoid`, same base
 parameterisation), or, by default, the smallest axis-aligned ellipsoid containing the box
 |theta_i - theta0_i| <= b_i of SP1/SP2 (``rel_bound``, ``abs_bound``): P = k diag(b^2), k the
 number of b_i > 0 (every box vertex lies on its boundary). See :func:`ellipsoid_design`.
@@ -172,7 +172,7 @@ def ellipsoid_design(ctx, p: dict):
     box = {k: float(p.pop(k)) for k in ("rel_bound", "abs_bound") if k in p}
     ell = p.pop("ellipsoid", None)
     if ell is not None:
-        from robust_drake.identification.ellipsoid import Ellipsoid
+        from robust_drake.uncertainty.ellipsoid import Ellipsoid
 
         ell = ell if isinstance(ell, Ellipsoid) else Ellipsoid.load(ell)
         theta0, P, source = ell.theta0, ell.P, "identified confidence ellipsoid (CI eq. 10)"

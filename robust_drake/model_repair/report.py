@@ -17,8 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from robust_drake.identification import residual as R
-from robust_drake.identification.stages import identified_models, reference_rms
+from robust_drake.model_repair import residual as R
+from robust_drake.model_repair.stages import identified_models, reference_rms
 
 
 @dataclass

@@ -51,8 +51,8 @@ import scipy.sparse as sp
 
 from robust_drake.analysis.tolerance import SDP_RTOL, certificate_tol, is_symmetric
 from robust_drake.errors import RobustDrakeError, SolverError
-from robust_drake.identification.lfr import LFR, random_deltas
-from robust_drake.identification.uncertainty import UncertaintyModel
+from robust_drake.uncertainty.lfr import LFR, random_deltas
+from robust_drake.uncertainty.regression import UncertaintyModel
 
 SOLVERS = ("clarabel", "scs", "csdp")
 FORMULATIONS = ("chordal", "full", "energy", "auto")
@@ -680,6 +680,80 @@ def _scalar_multiplier_bound(model: UncertaintyModel, theta0, A0, iters: int = 4
     return best[1], best[2]
 
 
+def _energy_generators(model: UncertaintyModel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Step 2 of :func:`energy_bound`: nominal LS estimate theta0, A0 = sum D0^T D0 and the
+    zonotope generators (rows of G) of r(delta)."""
+    K, s, n, m1 = model.coeffs.shape
+    m = m1 - 1
+    D0, tau0 = model.D0, model.tau0
+    A0 = np.einsum("kim,kin->mn", D0, D0)
+    b0 = np.einsum("kim,ki->m", D0, tau0)
+    try:
+        theta0 = np.linalg.solve(A0, b0)
+    except np.linalg.LinAlgError as exc:
+        raise SolverError("energy bound: the nominal regressor D0 has no full column rank") from exc
+    res0 = tau0 - np.einsum("kim,m->ki", D0, theta0)           # (K, n)
+    C = model.coeffs[..., :m]                                    # (K, s, n, m)
+    w = model.coeffs[..., m] - np.einsum("ksim,m->ksi", C, theta0)
+    lin = np.einsum("kim,ksi->ksm", D0, w) + np.einsum("ksim,ki->ksm", C, res0)
+    quad = np.einsum("ksim,kti->kstm", C, w)                     # coefficient of delta_s delta_t
+    iu, ju = np.triu_indices(s, 1)
+    cross = (quad + quad.transpose(0, 2, 1, 3))[:, iu, ju]
+    sq = quad[:, np.arange(s), np.arange(s)]
+    centre = 0.5 * sq.sum(axis=(0, 1)) + (b0 - A0 @ theta0)     # second term: round-off of sum D0^T res0
+    G = np.concatenate([lin.reshape(-1, m), cross.reshape(-1, m), 0.5 * sq.reshape(-1, m), centre[None]])
+    return theta0, A0, G[np.any(G != 0, axis=1)]
+
+
+def _energy_amin(model: UncertaintyModel, A0: np.ndarray) -> tuple[np.ndarray, float]:
+    """Step 1 of :func:`energy_bound`: A_min^-1/2 and alpha = ||sum |M_j|||; SolverError when
+    A(delta) is not provably invertible."""
+    m = A0.shape[0]
+    C, D0 = model.coeffs[..., :m], model.D0
+    wA, VA = np.linalg.eigh(A0)
+    if wA[0] <= 0:
+        raise SolverError("energy bound: D0^T D0 is singular")
+    A0mh = (VA / np.sqrt(wA)) @ VA.T
+    A0h = (VA * np.sqrt(wA)) @ VA.T
+    N = np.einsum("ksim,kin->ksmn", C, D0)
+    Mj = A0mh @ (N + np.swapaxes(N, 2, 3)).reshape(-1, m, m) @ A0mh
+    wj, Vj = np.linalg.eigh(Mj)
+    absM = np.einsum("jab,jb,jcb->ac", Vj, np.abs(wj), Vj)
+    Bn = np.eye(m) - 0.5 * (absM + absM.T)
+    wb = np.linalg.eigvalsh(Bn)
+    alpha = float(1.0 - wb[0])
+    if wb[0] <= 1e-9:
+        raise SolverError(f"energy bound: A(delta) is not provably invertible (||sum |M_j||| = {alpha:.3f} >= 1); "
+                          "use formulation='chordal'")
+    Amin = A0h @ Bn @ A0h
+    wm, Vm = np.linalg.eigh(0.5 * (Amin + Amin.T))
+    return (Vm / np.sqrt(wm)) @ Vm.T, alpha
+
+
+def _energy_outer(Gn: np.ndarray, Amh: np.ndarray, lambda_iters: int) -> tuple[np.ndarray, float, str]:
+    """Steps 2-3 of :func:`energy_bound` on the normalised generators Gn = G A_min^-1/2: the
+    smaller-trace of the ball and Thales outer ellipsoids over a few lambda re-weightings."""
+    m = Amh.shape[0]
+    lam = np.linalg.norm(Gn, axis=1)
+    lam = lam / lam.sum()
+    best, best_tr, best_kind = None, np.inf, ""
+    trA = np.trace(Amh @ Amh)
+    for _ in range(max(1, lambda_iters)):
+        Qt = (Gn.T / lam) @ Gn
+        wq, Vq = np.linalg.eigh(0.5 * (Qt + Qt.T))
+        rho2 = float(wq[-1])
+        T1, T2 = np.trace(Amh @ Qt @ Amh) / 4.0, trA * rho2 / 4.0
+        l1 = np.sqrt(T1) / (np.sqrt(T1) + np.sqrt(T2))
+        for kind, Cw in (("ball", rho2 * np.eye(m)),
+                         ("thales", (Qt / 4.0) / l1 + (rho2 / 4.0) * np.eye(m) / (1.0 - l1))):
+            P = Amh @ Cw @ Amh
+            if np.trace(P) < best_tr:
+                best, best_tr, best_kind = P, float(np.trace(P)), kind
+        lam = np.abs(Gn @ Vq[:, -1]) + 1e-3 * np.linalg.norm(Gn, axis=1)
+        lam = lam / lam.sum()
+    return best, best_tr, best_kind
+
+
 def energy_bound(model: UncertaintyModel, lambda_iters: int = 8) -> tuple[np.ndarray, np.ndarray, dict]:
     """Sound closed-form outer ellipsoid of the LS solutions (formulation ``"energy"``; no SDP).
 
@@ -718,64 +792,9 @@ def energy_bound(model: UncertaintyModel, lambda_iters: int = 8) -> tuple[np.nda
     loss is the worst-case A over the whole box (||sum |M_j||| ~ 0.5 there): measured
     2.2-4x the chordal SDP's trace (BUILD_NOTES "Calafiore & Indri").
     """
-    K, s, n, m1 = model.coeffs.shape
-    m = m1 - 1
-    D0, tau0 = model.D0, model.tau0
-    A0 = np.einsum("kim,kin->mn", D0, D0)
-    b0 = np.einsum("kim,ki->m", D0, tau0)
-    try:
-        theta0 = np.linalg.solve(A0, b0)
-    except np.linalg.LinAlgError as exc:
-        raise SolverError("energy bound: the nominal regressor D0 has no full column rank") from exc
-    res0 = tau0 - np.einsum("kim,m->ki", D0, theta0)           # (K, n)
-    C = model.coeffs[..., :m]                                    # (K, s, n, m)
-    w = model.coeffs[..., m] - np.einsum("ksim,m->ksi", C, theta0)
-    lin = np.einsum("kim,ksi->ksm", D0, w) + np.einsum("ksim,ki->ksm", C, res0)
-    quad = np.einsum("ksim,kti->kstm", C, w)                     # coefficient of delta_s delta_t
-    iu, ju = np.triu_indices(s, 1)
-    cross = (quad + quad.transpose(0, 2, 1, 3))[:, iu, ju]
-    sq = quad[:, np.arange(s), np.arange(s)]
-    centre = 0.5 * sq.sum(axis=(0, 1)) + (b0 - A0 @ theta0)     # second term: round-off of sum D0^T res0
-    G = np.concatenate([lin.reshape(-1, m), cross.reshape(-1, m), 0.5 * sq.reshape(-1, m), centre[None]])
-    G = G[np.any(G != 0, axis=1)]
-    # step 1
-    wA, VA = np.linalg.eigh(A0)
-    if wA[0] <= 0:
-        raise SolverError("energy bound: D0^T D0 is singular")
-    A0mh = (VA / np.sqrt(wA)) @ VA.T
-    A0h = (VA * np.sqrt(wA)) @ VA.T
-    N = np.einsum("ksim,kin->ksmn", C, D0)
-    Mj = A0mh @ (N + np.swapaxes(N, 2, 3)).reshape(-1, m, m) @ A0mh
-    wj, Vj = np.linalg.eigh(Mj)
-    absM = np.einsum("jab,jb,jcb->ac", Vj, np.abs(wj), Vj)
-    Bn = np.eye(m) - 0.5 * (absM + absM.T)
-    wb = np.linalg.eigvalsh(Bn)
-    alpha = float(1.0 - wb[0])
-    if wb[0] <= 1e-9:
-        raise SolverError(f"energy bound: A(delta) is not provably invertible (||sum |M_j||| = {alpha:.3f} >= 1); "
-                          "use formulation='chordal'")
-    Amin = A0h @ Bn @ A0h
-    wm, Vm = np.linalg.eigh(0.5 * (Amin + Amin.T))
-    Amh = (Vm / np.sqrt(wm)) @ Vm.T                                # A_min^-1/2
-    # steps 2-3
-    Gn = G @ Amh
-    lam = np.linalg.norm(Gn, axis=1)
-    lam = lam / lam.sum()
-    best, best_tr, best_kind = None, np.inf, ""
-    trA = np.trace(Amh @ Amh)
-    for _ in range(max(1, lambda_iters)):
-        Qt = (Gn.T / lam) @ Gn
-        wq, Vq = np.linalg.eigh(0.5 * (Qt + Qt.T))
-        rho2 = float(wq[-1])
-        T1, T2 = np.trace(Amh @ Qt @ Amh) / 4.0, trA * rho2 / 4.0
-        l1 = np.sqrt(T1) / (np.sqrt(T1) + np.sqrt(T2))
-        for kind, Cw in (("ball", rho2 * np.eye(m)),
-                         ("thales", (Qt / 4.0) / l1 + (rho2 / 4.0) * np.eye(m) / (1.0 - l1))):
-            P = Amh @ Cw @ Amh
-            if np.trace(P) < best_tr:
-                best, best_tr, best_kind = P, float(np.trace(P)), kind
-        lam = np.abs(Gn @ Vq[:, -1]) + 1e-3 * np.linalg.norm(Gn, axis=1)
-        lam = lam / lam.sum()
+    theta0, A0, G = _energy_generators(model)
+    Amh, alpha = _energy_amin(model, A0)                          # step 1: A_min^-1/2
+    best, best_tr, best_kind = _energy_outer(G @ Amh, Amh, lambda_iters)  # steps 2-3
     centre = theta0
     c4, P4 = _scalar_multiplier_bound(model, theta0, A0)
     if P4 is not None and np.trace(P4) < best_tr:

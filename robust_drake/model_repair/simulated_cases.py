@@ -1,6 +1,6 @@
 """Simulated experiments with effects OUTSIDE the original effect library (issue 13).
 
-Builds on :func:`robust_drake.identification.simulated.simulate_experiment` (its ``extra_blocks``
+Builds on :func:`robust_drake.model_repair.simulated.simulate_experiment` (its ``extra_blocks``
 hook): each case adds one true-plant block that no kind of the original library represents,
 on an arm other than the D2R2 / default C.1 arm. Every block has input ``state`` (2n) [and
 ``tau`` (n)] and output ``generalized_force`` (n), summed into the plant's applied force like
@@ -28,7 +28,7 @@ import numpy as np
 from pydrake.systems.framework import LeafSystem
 
 from robust_drake.errors import RobustDrakeError
-from robust_drake.identification.simulated import PeriodicDisturbance, simulate_experiment
+from robust_drake.model_repair.simulated import PeriodicDisturbance, simulate_experiment
 
 
 class DeadZoneDriver(LeafSystem):

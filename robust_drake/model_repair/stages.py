@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from robust_drake.errors import RobustDrakeError
-from robust_drake.identification import residual as R
+from robust_drake.model_repair import residual as R
 from robust_drake.identification.data import IdentData, frozen_joints, load, load_companion
 from robust_drake.identification.fitting import ColumnCache, effect_label, fit_model, predict_tau
 from robust_drake.identification.least_squares import LSResult, load_regressor, solve_wls
@@ -86,7 +86,7 @@ class Inputs:
 def load_inputs(fit_paths, validate_paths, opts, log) -> Inputs:
     """Read the fit (and validation) files; hold out a tail when no validation files are given."""
     from robust_drake.identification import input_checks as IC
-    from robust_drake.identification.model import joint_names_of
+    from robust_drake.model_repair.model import joint_names_of
 
     warn: list[str] = []
     regressor = load_regressor(opts.robot)
@@ -181,7 +181,7 @@ def choose_estimator(inp: Inputs, base: Baseline, opts, log) -> Estimator:
     attenuated LS fit makes the selection chase columns that only mimic the bias): Hausman test,
     then (with the consistent fit and the replay on) the replay of the fit data's motion."""
     from robust_drake.identification import instruments as IV
-    from robust_drake.identification.selection import n_effective
+    from robust_drake.identification.data import n_effective
 
     fit = inp.fit
     if not (opts.instruments and fit.filter.cutoff_hz and fit.filter.derivatives != "given"):
@@ -256,8 +256,8 @@ def refit_weights(inp: Inputs, base: Baseline, est: Estimator, effects, opts) ->
 
 
 def select_effects(inp: Inputs, base: Baseline, est: Estimator, opts, log) -> Selection:
-    from robust_drake.identification.effects import all_candidates
-    from robust_drake.identification.selection import forward_select
+    from robust_drake.model_repair.effects import all_candidates
+    from robust_drake.model_repair.selection import forward_select
 
     cands = all_candidates(inp.fit.n, kinds=opts.kinds, robot=opts.robot)
     sel = forward_select(inp.cf, cands, min_gain=opts.min_gain, max_effects=opts.max_effects, progress=log,
@@ -271,8 +271,8 @@ def resolve_torque_scale(inp: Inputs, base: Baseline, est: Estimator, sel: Selec
     """torque_scale: pick the joint against the URDF (nominal.resolve_torque_scale)."""
     if not opts.nominal:
         return sel
-    from robust_drake.identification.effects import make_effect
-    from robust_drake.identification.nominal import resolve_torque_scale as resolve
+    from robust_drake.model_repair.effects import make_effect
+    from robust_drake.model_repair.nominal import resolve_torque_scale as resolve
 
     p0 = len(inp.regressor.base_names)
     for k, e in enumerate(sel.chosen):
@@ -390,7 +390,7 @@ def compare_nominal(inp: Inputs, sel: Selection, fin: Final, guard: Guard, opts,
     the URDF model without it (``guard.tolerance``)."""
     if not opts.nominal:
         return None
-    from robust_drake.identification import nominal as NM
+    from robust_drake.model_repair import nominal as NM
     nominal = NM.compare_with_nominal(inp.cf, inp.cv, inp.regressor, fin.fit, sel.chosen, sel.candidates,
                                       sel.weights, sigma_rel=opts.sigma_rel)
     named = nominal.pop("named")
@@ -473,7 +473,7 @@ def friction_of(theta, names, n):
 
 def replay_model(opts, inp: Inputs, data: IdentData, fitres, effects, cons) -> dict:
     """Replay ``data`` through the Drake plant with a fitted model (consistent inertias if given)."""
-    from robust_drake.identification.replay import replay
+    from robust_drake.model_repair.replay import replay
 
     theta = cons.theta if cons is not None else fitres.theta
     fc, fv = friction_of(theta, fitres.names, data.n)
@@ -529,8 +529,8 @@ def replay_guard(inp: Inputs, base: Baseline, est: Estimator, sel: Selection, gu
 
 
 def identified_models(inp: Inputs, base: Baseline, est: Estimator, sel: Selection, fin: Final):
-    """(baseline, final) :class:`~robust_drake.identification.model.IdentifiedModel` of the repair."""
-    from robust_drake.identification.model import IdentifiedEffect, IdentifiedModel
+    """(baseline, final) :class:`~robust_drake.model_repair.model.IdentifiedModel` of the repair."""
+    from robust_drake.model_repair.model import IdentifiedEffect, IdentifiedModel
 
     p0 = len(inp.regressor.base_names)
     summary = inp.fit.summary()

@@ -18,7 +18,7 @@ plus diagnostics (selection steps, identifiability, residual tests, data summary
 never-worse outcome (``"verdict": "repaired" | "no_improvement"``, ``"verdict_reason"``,
 ``"never_worse"``, ``"rejected_effects"`` and ``effects[*].kept/reason``), ``"joint_names"`` (URDF,
 joints numbered from 0 everywhere) and the identified models ``"model"`` / ``"baseline_model"``
-(:class:`~robust_drake.identification.model.IdentifiedModel.to_json`), which are what control
+(:class:`~robust_drake.model_repair.model.IdentifiedModel.to_json`), which are what control
 takes. The stages are in ``stages.py``; rendering (report.md from the same dict) in ``report.py``.
 Validation: the ``validate`` files; without them the last ``HOLDOUT_FRACTION`` of every fit file
 (a contiguous tail) is held out, and the report says so.
@@ -34,13 +34,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from robust_drake.errors import RobustDrakeError
-from robust_drake.identification import report as RP
+from robust_drake.model_repair import report as RP
 from robust_drake.identification.data import DEFAULT_CUTOFF_HZ, DataWarning
-from robust_drake.identification.model import IdentifiedModel
-from robust_drake.identification.report import json_default as _json_default
-from robust_drake.identification.report import render_markdown  # noqa: F401  (re-exported)
-from robust_drake.identification.selection import MIN_GAIN
-from robust_drake.identification.stages import HOLDOUT_FRACTION, split_tail, tail_mask  # noqa: F401  (re-exported)
+from robust_drake.model_repair.model import IdentifiedModel
+from robust_drake.model_repair.report import json_default as _json_default
+from robust_drake.model_repair.report import render_markdown  # noqa: F401  (re-exported)
+from robust_drake.model_repair.selection import MIN_GAIN
+from robust_drake.model_repair.stages import HOLDOUT_FRACTION, split_tail, tail_mask  # noqa: F401  (re-exported)
 
 
 @dataclass
@@ -246,7 +246,7 @@ def run_repair(fit_paths, options: RepairOptions, validate_paths=None, out_dir=N
     only when complete (:func:`_publish`): a failure part-way leaves an earlier report untouched.
     """
     from robust_drake.identification import input_checks as IC
-    from robust_drake.identification import stages as S
+    from robust_drake.model_repair import stages as S
 
     from robust_drake.log import progress_callback
 
@@ -343,7 +343,7 @@ def run_repair_demo(out_dir: str, kind: str = "stribeck", seed: int = 0, progres
     baseline, finds the missing effect, and writes the report there. Returns the report with an
     extra ``"truth"`` entry (what was hidden) so a caller can compare.
     """
-    from robust_drake.identification.simulated import hidden_effect_case
+    from robust_drake.model_repair.simulated import hidden_effect_case
 
     os.makedirs(out_dir, exist_ok=True)
     from robust_drake.log import progress_callback
@@ -369,7 +369,7 @@ def run_repair_demo(out_dir: str, kind: str = "stribeck", seed: int = 0, progres
 
 def effects_from_report(report: dict) -> list:
     """The chosen effects of a repair report as ``[(Effect, parameters), ...]`` (via
-    :class:`~robust_drake.identification.model.IdentifiedModel`)."""
+    :class:`~robust_drake.model_repair.model.IdentifiedModel`)."""
     return IdentifiedModel.from_report(report).effect_terms()
 
 

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from robust_drake.errors import DataError, RobustDrakeError
-from robust_drake.identification.lfr import LFR, lfr_from_affine, lfr_product, lfr_sum
+from robust_drake.uncertainty.lfr import LFR, lfr_from_affine, lfr_product, lfr_sum
 
 #: CI section 5, experimentally estimated confidence bounds (SI units).
 CI_DELTA_MAX = {

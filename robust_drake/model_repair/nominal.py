@@ -34,7 +34,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import stats
 
-from robust_drake.identification.selection import effect_label, implausible, predict_tau
+from robust_drake.model_repair.selection import effect_label, implausible, predict_tau
 
 #: relative trust in the URDF's base parameters (5 % of each parameter's scale)
 SIGMA_REL = 0.05
@@ -172,7 +172,7 @@ def resolve_torque_scale(theta_rigid: np.ndarray, se_rigid: np.ndarray, theta0: 
     if n != 2:
         return {"joint": joint, "gain_error": gain_error, "swapped": False,
                 "chi2_as_fitted": c_fit, "chi2_swapped": None}
-    from robust_drake.identification.effects import equivalent_gain_error
+    from robust_drake.model_repair.effects import equivalent_gain_error
 
     alt = np.asarray(theta_rigid) / (1.0 + gain_error)
     c_alt = chi2(alt - theta0, W)

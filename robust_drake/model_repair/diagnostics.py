@@ -7,7 +7,7 @@ torque range [N m]), plus ``variable`` (a readable description) and ``eta2`` (th
 residual variance the structure explains) so the rows read like the state-dependence rows of
 :mod:`residual` in reports; :func:`diagnose` runs them all. Samples of the filtered residual are
 correlated over 1 / (2 f_c) (f_c the data's low-pass cut-off), so standard errors use the
-effective count N_eff = N * 2 f_c dt (``residual._decimation``).
+effective count N_eff = N * 2 f_c dt (``data.decimation``).
 
 1. **periodic** (:func:`periodic_peaks`): Hann-windowed, zero-padded periodogram of each file's
    residual, averaged over files. A peak is a local maximum whose power is at least
@@ -46,7 +46,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from robust_drake.identification.residual import ALPHA, _decimation
+from robust_drake.identification.data import decimation
+
+ALPHA = 1e-3  # significance level of every residual test (here and in :mod:`residual`)
 
 PEAK_RATIO = 300.0  # peak power / median spectral floor
 MOTION_REL = 1e-2  # velocity power at the peak / its maximum, below which a peak is not the motion's
@@ -140,7 +142,7 @@ def _ols(X, y, n_eff):
 
 def friction_drift(data, residual: np.ndarray, z_min: float = DRIFT_Z, share: float = DRIFT_SHARE) -> list[dict]:
     """Viscous / Coulomb coefficients on the first vs last third of each file (see module doc)."""
-    dec = _decimation(data)
+    dec = decimation(data)
     out = []
     for j in range(residual.shape[1]):
         best = None
@@ -192,7 +194,7 @@ def dead_band(data, residual: np.ndarray, share: float = DEADBAND_SHARE, alpha: 
     from scipy.optimize import minimize_scalar
     from scipy.stats import f as fdist
 
-    n_eff = data.N / _decimation(data)
+    n_eff = data.N / decimation(data)
     out = []
     for j in range(residual.shape[1]):
         tau, qd, r = data.tau[:, j], data.qd[:, j], residual[:, j]

@@ -36,7 +36,7 @@ class IdentifiedEffect:
 
     def effect(self, robot=None):
         """The :class:`effects.Effect` instance, shape parameters read back from ``parameters``."""
-        from robust_drake.identification.effects import EFFECTS, make_effect
+        from robust_drake.model_repair.effects import EFFECTS, make_effect
 
         if self.kind not in EFFECTS:
             raise RobustDrakeError(f"unknown effect kind {self.kind!r} in the identified model")
@@ -163,7 +163,7 @@ class IdentifiedModel:
     def add_effect_blocks(self, builder, plant, tau_port, sample_period=None):
         """Sum ``tau_port`` and the force-type effect blocks into the plant's applied
         generalized force (``effects.add_effect_blocks``); returns the added blocks."""
-        from robust_drake.identification.effects import add_effect_blocks
+        from robust_drake.model_repair.effects import add_effect_blocks
 
         return add_effect_blocks(builder, plant, tau_port, self.effect_terms(), sample_period=sample_period)
 

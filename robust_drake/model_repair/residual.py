@@ -26,21 +26,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from robust_drake.identification.data import IdentData
+from robust_drake.identification.data import IdentData, decimation
+from robust_drake.model_repair.diagnostics import ALPHA, diagnose
 
 ETA_MIN = 0.05
-ALPHA = 1e-3
 BINS = 12
 LAGS = 10
 RHO_MAX = 0.5
 REVERSAL_WINDOW = 0.1  # s
-
-
-def _decimation(data: IdentData) -> int:
-    fc = data.filter.cutoff_hz
-    if fc is None:
-        return 1
-    return max(1, int(round(1.0 / (2.0 * fc * data.dt))))
 
 
 def explanatory_variables(data: IdentData) -> dict[str, np.ndarray]:
@@ -78,7 +71,7 @@ def state_dependence(data: IdentData, residual: np.ndarray, bins: int = BINS) ->
     """eta^2 and its p-value for every (residual joint, variable) pair, strongest first."""
     from scipy.stats import f as fdist
 
-    n_eff = max(float(data.N) / _decimation(data), bins + 2.0)
+    n_eff = max(float(data.N) / decimation(data), bins + 2.0)
     rows = []
     for j in range(residual.shape[1]):
         for name, x in explanatory_variables(data).items():
@@ -106,7 +99,7 @@ def ljung_box(x: np.ndarray, lags: int = LAGS) -> tuple[float, float, float]:
 
 
 def whiteness(data: IdentData, residual: np.ndarray) -> list[dict]:
-    step = _decimation(data)
+    step = decimation(data)
     out = []
     for j in range(residual.shape[1]):
         parts = [residual[data.segment == s, j][::step] for s in np.unique(data.segment)]
@@ -154,8 +147,6 @@ def analyse(data: IdentData, residual: np.ndarray, eta_min: float = ETA_MIN, alp
     ``frequency_hz``, ``drift`` with the coefficients of the first / last third and their times,
     ``dead_band`` with the torque range, ``generalization`` when ``validate_residual`` is given),
     then the state-dependence rows (``test`` = ``state_dependence``: joint, variable, eta2)."""
-    from robust_drake.identification.diagnostics import diagnose
-
     diag = diagnose(data, residual, validate_residual)
     dep = state_dependence(data, residual)
     white = whiteness(data, residual)

@@ -124,7 +124,7 @@ def schur_mu(D0, L, R, scalars, s) -> tuple[float, float]:
 
 def check_full_rank(model, draws: int = 2000, seed: int = 0, max_channels: int = MAX_CHANNELS) -> FullRankResult:
     """CI's full-rank assumption on the stacked regressor of an ``UncertaintyModel`` (module docstring)."""
-    from robust_drake.identification.lfr import random_deltas
+    from robust_drake.uncertainty.lfr import random_deltas
 
     m = model.n_params
     D0 = np.asarray(model.D0, float).reshape(-1, m)

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from robust_drake.identification.data import IdentData
+from robust_drake.identification.data import IdentData, n_effective
 from robust_drake.identification.fitting import (  # noqa: F401  (re-exported)
     ColumnCache, effect_label, fit_model, implicit_mask, predict, predict_tau,
 )
@@ -106,13 +106,6 @@ def cv_score(cache: "ColumnCache", effects, weights, folds, icache=None) -> floa
         total += float(np.sum(r**2))
         count += r.size
     return total / count
-
-
-def n_effective(data: IdentData) -> float:
-    fc = data.filter.cutoff_hz
-    if fc is None:
-        return float(data.N)
-    return float(data.N) * min(1.0, 2.0 * fc * data.dt)
 
 
 def bic(rss_w: float, rows: int, p: int, n_eff_rows: float) -> float:
@@ -233,4 +226,4 @@ def forward_select(cache: ColumnCache, candidates: list, min_gain: float = MIN_G
 
 
 __all__ = ["ColumnCache", "forward_select", "fit_model", "predict", "predict_tau", "implausible", "blocked_folds", "cv_score",
-           "effect_label", "identifiability", "n_effective", "bic", "Step", "SelectionResult"]
+           "effect_label", "identifiability", "bic", "Step", "SelectionResult"]
