@@ -10,9 +10,10 @@ grows over the run. The battery runs ``repair`` (Python API) and asserts:
     right joint (and the frequency within 2 %) in the final residual's ``where``, or in the
     baseline residual's diagnostics when an added effect absorbed it (serial7 drift);
   - nothing claimed with high confidence, and no ``time_delay`` / ``position_dependent`` /
-    ``rotor_inertia`` / ``spring`` claimed at all (xfail until the selection considers the
-    diagnostic kinds and h8's never-worse guard is in; see the report);
-  - never worse: final validation RMS <= baseline * 1.01 per joint (xfail without h8's guard);
+    ``rotor_inertia`` / ``spring`` claimed at all (the measured A.0 dead-zone case stays xfail
+    until the selection offers the diagnostic kinds as candidates);
+  - never worse: final validation RMS <= baseline * 1.01 per joint (the measured serial7 cases
+    where the IV switch is judged by the replay stay xfail);
   - the no-effect case: nothing claimed, nothing flagged.
 The new kinds are fitted directly (baseline + the candidates the diagnostics propose) and their
 parameters recovered within stated tolerances. ~5 s per case (12 s runs at 250 Hz).
@@ -289,7 +290,7 @@ def test_generalization_flags_a_validation_much_worse_than_the_fit():
 # ------------------------------------------------------------------------------ the selection hook
 @pytest.mark.parametrize("case", CASES)
 def test_selection_given_the_diagnostic_candidates_names_the_outside_effect(case, tmp_path_factory):
-    """The hook proposed for repair (h8 owns repair.py/selection.py): candidates =
+    """The hook proposed for the repair selection (not wired in yet): candidates =
     ``all_candidates(n, robot=..., diagnostics=diagnose(fit, baseline residual))``, searched by
     the existing ``forward_select``. The outside effect is then named first, on its joint, nothing
     misattributed, and no joint's validation gets worse (A.0 cases)."""

@@ -190,7 +190,7 @@ def test_c1_joint0_friction_lags_at_reversals_presliding_friction(x0):
     torque clearly better for every x0 of the library's grid (not one tuned value), with a
     positive build-up torque and a total friction level (fc1 + F_d) of the size a small
     planetary QDD joint has (< 0.5 N m). Joint 1 is not improved by it (nor by any library
-    effect, see BUILD_NOTES "Identification and repair", 2026-11-21 second pass)."""
+    effect, see BUILD_NOTES "Identification and repair")."""
     from robust_drake.identification.data import load
     from robust_drake.model_repair.effects import make_effect
     from robust_drake.identification.least_squares import load_regressor, solve_wls
