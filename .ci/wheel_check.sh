@@ -45,7 +45,7 @@ cd "$tmp/run"
 unset PYTHONPATH ROBUST_DRAKE_MODELS
 echo "wheel-check: robust-drake simulate from $PWD"
 "$tmp/venv/bin/robust-drake" simulate --robot d2r2 --controller pd --duration 0.05 --json \
-    --plot sim.png > sim.json
+    --plot plots > sim.json
 "$tmp/venv/bin/python" - "$root" <<'PY'
 import json, math, pathlib, shutil, sys
 
@@ -60,7 +60,7 @@ doc = json.loads(pathlib.Path("sim.json").read_text(),
                  parse_constant=lambda c: sys.exit(f"sim.json holds {c}: not strict JSON"))
 assert doc["sim_seconds"] == 0.05 and not doc["diverged"], doc
 assert all(math.isfinite(doc[k]) and doc[k] > 0 for k in ("error1", "error2", "error_task")), doc
-assert pathlib.Path("sim.png").stat().st_size > 1000, "no plot written"
+assert pathlib.Path("plots/tracking.png").stat().st_size > 1000, "no plot written"
 
 urdf = resolve_urdf("d2r2", "max")            # package data of the installed wheel
 assert here.parent in urdf.resolve().parents, urdf
