@@ -41,6 +41,7 @@ _LAZY = {
     "ClosedLoopConfig": "robust_drake.diagram",
     "tracking_figure": "robust_drake.plotting",
     "task_path_figure": "robust_drake.plotting",
+    "repair_figure": "robust_drake.plotting",
     "render_diagram": "robust_drake.viz",
     "add_meshcat": "robust_drake.viz",
     "set_log_level": "robust_drake.log",

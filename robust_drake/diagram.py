@@ -28,7 +28,7 @@ import numbers
 import os
 import time
 from dataclasses import asdict, dataclass, field
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 from pydrake.systems.analysis import ResetIntegratorFromFlags, Simulator
@@ -45,6 +45,10 @@ from robust_drake.systems.forces import add_force_blocks, sum_into_plant
 from robust_drake.systems.friction import CoulombViscousFriction, FixedFrictionCompensation
 from robust_drake.systems.sensors import QuantizingEncoder, quantize
 from robust_drake.trajectories import ReferenceTrajectory, make_reference
+
+if TYPE_CHECKING:  # pragma: no cover
+    import pandas as pd
+    from matplotlib.figure import Figure
 
 MAX_INTEGRATOR_STEP = 4e-4  # s; the plant is integrated with steps no longer than this
 DIVERGENCE_LIMIT = STATE_LIMIT  # |q| [rad] or |v| [rad/s]; see robust_drake.divergence
@@ -303,6 +307,45 @@ class SimulationResult:
     config: dict
     link_lengths: tuple | None = None
     divergence_reason: str | None = None  # why ``diverged`` (robust_drake.divergence), else None
+
+    def plot(self, title: str | None = None) -> "Figure":
+        """The tracking figure of this run (:func:`robust_drake.plotting.tracking_figure`).
+
+        Parameters
+        ----------
+        title : str, optional
+            Figure title; None describes the run.
+
+        Returns
+        -------
+        matplotlib.figure.Figure
+            Joint errors [rad], task-space error [mm] (planar arms) and torques [N m] against
+            t [s]; detached from pyplot (``fig.savefig(path)`` or show it in a notebook).
+        """
+        from robust_drake.plotting import tracking_figure
+
+        return tracking_figure(self, title)
+
+    def to_pandas(self) -> "pd.DataFrame":
+        """The logs as a DataFrame indexed by ``t`` [s].
+
+        Columns ``q1..qn`` [rad], ``v1..vn`` [rad/s], ``q_d1..q_dn`` [rad], ``u1..un`` and
+        ``tau1..taun`` [N m] (joint numbers from 1, as in the papers).
+
+        Returns
+        -------
+        pandas.DataFrame
+            One row per controller tick, ``5 n`` columns.
+        """
+        import pandas as pd
+
+        n = self.q.shape[1]
+        cols = {}
+        for name in ("q", "v", "q_d", "u", "tau"):
+            a = np.asarray(getattr(self, name), float).reshape(len(self.t), n)
+            for j in range(n):
+                cols[f"{name}{j + 1}"] = a[:, j]
+        return pd.DataFrame(cols, index=pd.Index(np.asarray(self.t, float), name="t"))
 
     def to_dict(self, logs: bool = False) -> dict:
         out = dict(self.metrics)

@@ -165,3 +165,65 @@ def plot_tracking(result: "SimulationResult", path: "str | pathlib.Path", title:
     path = _prepare(path)
     tracking_figure(result, title).savefig(path, dpi=110)
     return path
+
+
+def _load_report(report_or_dir) -> dict:
+    """The repair report: a dict as is, else ``report.json`` (or a folder holding it)."""
+    import json
+    import os
+
+    from robust_drake.errors import RobustDrakeError
+
+    if isinstance(report_or_dir, dict):
+        return report_or_dir
+    path = pathlib.Path(os.fspath(report_or_dir))
+    if path.is_dir():
+        path = path / "report.json"
+    if not path.is_file():
+        raise RobustDrakeError(f"no repair report at {path} (give the report dict, report.json or its folder)")
+    with open(path) as fh:
+        return json.load(fh)
+
+
+def repair_figure(report_or_dir: "dict | str | pathlib.Path") -> "Figure":
+    """RMS torque residual per joint [N m] of the baseline and the repaired model, on the fit
+    and the validation data, from a repair report (what :func:`robust_drake.repair` returns).
+
+    The time-series figures of a repair (``residual_fit.png``, ``residual_validate.png``,
+    ``torque_validate.png``) need the data and are written by ``repair --out``; this one needs
+    only the report.
+
+    Parameters
+    ----------
+    report_or_dir : dict or str or pathlib.Path
+        The report dict, a ``report.json`` file or the folder holding it.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        One panel per data set (fit, validate), grouped bars per joint (numbered from 0 with the
+        URDF's joint names, as in the report); detached from pyplot.
+    """
+    from robust_drake.errors import RobustDrakeError
+
+    rep = _load_report(report_or_dir)
+    try:
+        base, fin = rep["baseline"], rep["final"]
+    except (KeyError, TypeError):
+        raise RobustDrakeError("not a repair report: 'baseline' and 'final' are missing") from None
+    names = rep.get("joint_names") or [str(j) for j in range(len(base["rms_fit"]))]
+    fig, axes = subplots(1, 2, figsize=(10, 4), sharey=True, squeeze=False)
+    x = np.arange(len(names))
+    for ax, key, what in zip(axes[0], ("rms_fit", "rms_validate"), ("fit data", "validation data")):
+        b = np.array([np.nan if v is None else v for v in base[key]], float)
+        f = np.array([np.nan if v is None else v for v in fin[key]], float)
+        ax.bar(x - 0.2, b, 0.4, color="tab:red", label="baseline model")
+        ax.bar(x + 0.2, f, 0.4, color="tab:blue", label="repaired model")
+        ax.set_xticks(x, [f"joint {j} ({n})" for j, n in enumerate(names)])
+        ax.set_title(what)
+        ax.grid(axis="y", alpha=0.3)
+    axes[0, 0].set_ylabel("RMS torque residual [N m]")
+    axes[0, 1].legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=8, frameon=False)
+    fig.suptitle(f"repair of {rep.get('robot', '?')}: {rep.get('verdict', '')}", fontsize=10)
+    fig.tight_layout()
+    return fig

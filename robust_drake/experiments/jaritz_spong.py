@@ -182,6 +182,7 @@ def run_one(spec: dict) -> dict:
     res = simulate(config_for(spec))
     row = {k: spec[k] for k in ("table", "controller", "load", "friction_compensation", "trajectory", "rate", "observer")}
     row["model"] = spec.get("model", "rigid")
+    row["metrics_skip"] = float(spec.get("metrics_skip") or 0.0)  # s at the start the metrics leave out
     row["viscous_compensation"] = bool(spec.get("viscous_compensation", False))
     row.update({k: float(res.metrics[k]) for k in METRIC_KEYS})
     row.update(diverged=bool(res.diverged), divergence_reason=res.divergence_reason,
@@ -259,13 +260,74 @@ def format_paper_table(table: int, rows: list[dict]) -> str:
     return title + "\n" + format_table(body, header)
 
 
+#: controllers drawn in one row of :func:`plot_table` (nearly identical runs: SP1 solid, SP2 dashed)
+OVERLAID = ("sp1", "sp2")
+
+
+def _table_groups(rows: list[dict]) -> list[list[dict]]:
+    """Rows of :func:`plot_table`: SP1 and SP2 share one row, every other controller has its own."""
+    pair = [r for r in rows if r["controller"] in OVERLAID]
+    groups, placed = [], False
+    for r in rows:
+        if r["controller"] in OVERLAID:
+            if not placed:
+                groups.append(pair)
+                placed = True
+        else:
+            groups.append([r])
+    return groups
+
+
+def _group_name(table: int, group: list[dict]) -> str:
+    parts = []
+    for k, r in enumerate(group):
+        fig_no = FIGURES.get(table, {}).get(r["controller"])
+        style = (" solid", " dashed")[k % 2] if len(group) > 1 else ""
+        parts.append(LABELS.get(r["controller"], r["controller"]) + style
+                     + (" (diverged)" if r.get("diverged") else "") + (f", cf. JS fig. {fig_no}" if fig_no else ""))
+    return "; ".join(parts)
+
+
+def _plot_group(ax_row, table: int, group: list[dict], L) -> None:
+    """One row of :func:`plot_table`: joint errors [rad] | task-space error [m] | torques [N m]."""
+    from robust_drake.kinematics import planar_forward_kinematics
+
+    for k, r in enumerate(group):
+        lg, ls = r["logs"], ("-", "--")[k % 2]
+        t, e, tau = np.asarray(lg["t"]), np.asarray(lg["e"]), np.asarray(lg["tau"])
+        task = np.linalg.norm(planar_forward_kinematics(np.asarray(lg["q"]), L)
+                              - planar_forward_kinematics(np.asarray(lg["q_d"]), L), axis=1)
+        tag = LABELS.get(r["controller"], r["controller"])
+        for j in range(e.shape[1]):
+            ax_row[0].plot(t, e[:, j], ls=ls, color=f"C{j}", lw=0.8, label=f"{tag} e{j + 1}")
+            ax_row[2].plot(t, tau[:, j], ls=ls, color=f"C{j}", lw=0.7, label=f"{tag} tau{j + 1}")
+        ax_row[1].plot(t, task, ls=ls, color="k", lw=0.8, label=f"{tag}")
+        skip = float(r.get("metrics_skip") or 0.0)
+        if skip > 0:
+            for ax in ax_row:
+                ax.axvspan(t[0], t[0] + skip, color="0.92", zorder=0,
+                           label="not in the metrics" if ax is ax_row[1] and k == 0 else None)
+    ax_row[0].set_ylabel("joint error [rad]", fontsize=8)
+    ax_row[1].set_ylabel("task-space error [m]", fontsize=8)
+    ax_row[2].set_ylabel("torque [N m]", fontsize=8)
+    ax_row[1].set_title(_group_name(table, group), fontsize=9)
+    ax_row[2].legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0), frameon=False)
+    ax_row[0].legend(fontsize=6, loc="upper right", frameon=False, ncol=2)
+    if any(float(r.get("metrics_skip") or 0.0) > 0 for r in group):
+        ax_row[1].legend(fontsize=6, loc="upper right", frameon=False)
+    for ax in ax_row:
+        ax.grid(alpha=0.3)
+
+
 def plot_table(table: int, rows: list[dict], out_dir) -> pathlib.Path:
-    """Figure analog for a table: per controller, joint errors (and task-space error) and torques.
+    """Figure analog for a table: per controller, joint errors [rad], task-space error [m] and
+    torques [N m] against t [s], in separate columns whose y-limits are shared by all rows, so
+    controllers compare row to row; SP1 and SP2 (nearly identical) share a row, SP1 solid and
+    SP2 dashed; the interval the metrics skip (circle: first 1 s) is shaded.
 
     Tables 5 and 7 are the runs of JS figures 4-7 and 8-11 (maximum load, compensation)."""
     from robust_drake.plotting import subplots
 
-    from robust_drake.kinematics import planar_forward_kinematics
     from robust_drake.models import get_arm
 
     out_dir = pathlib.Path(out_dir)
@@ -274,28 +336,16 @@ def plot_table(table: int, rows: list[dict], out_dir) -> pathlib.Path:
     if not rows:
         raise RobustDrakeError("plot_table needs rows run with logs=True")
     L = get_arm("d2r2").link_lengths
-    fig, axes = subplots(len(rows), 2, figsize=(11, 2.6 * len(rows)), squeeze=False)
-    for ax_row, r in zip(axes, rows):
-        lg = r["logs"]
-        t = np.asarray(lg["t"])
-        e = np.asarray(lg["e"])
-        tau = np.asarray(lg["tau"])
-        task = np.linalg.norm(planar_forward_kinematics(np.asarray(lg["q"]), L)
-                              - planar_forward_kinematics(np.asarray(lg["q_d"]), L), axis=1)
-        fig_no = FIGURES.get(table, {}).get(r["controller"])
-        name = LABELS.get(r["controller"], r["controller"]) + (f" (cf. JS fig. {fig_no})" if fig_no else "")
-        ax_row[0].plot(t, e[:, 0], label="joint 1 [rad]")
-        ax_row[0].plot(t, e[:, 1], label="joint 2 [rad]")
-        ax_row[0].plot(t, task, label="task space [m]", color="k", lw=0.8)
-        ax_row[0].set_title(f"{name}: tracking errors")
-        ax_row[0].legend(fontsize=7)
-        ax_row[1].plot(t, tau[:, 0], label="tau1")
-        ax_row[1].plot(t, tau[:, 1], label="tau2")
-        ax_row[1].set_title(f"{name}: torques [N m]")
-        ax_row[1].legend(fontsize=7)
+    groups = _table_groups(rows)
+    fig, axes = subplots(len(groups), 3, figsize=(15, 2.7 * len(groups) + 0.8), squeeze=False,
+                         sharex=True, sharey="col")
+    for ax_row, group in zip(axes, groups):
+        _plot_group(ax_row, table, group, L)
     for ax in axes[-1]:
         ax.set_xlabel("t [s]")
-    fig.suptitle(f"Table {table}: {TABLES[table]['title']} (simulated D2R2)")
+    dur = max(float(np.asarray(r["logs"]["t"])[-1]) for r in rows)
+    fig.suptitle(f"Table {table}: {TABLES[table]['title']} (simulated D2R2, {dur:.3g} s per run; "
+                 "y-limits shared by all rows)", fontsize=10)
     fig.tight_layout()
     path = out_dir / f"table{table}.png"
     fig.savefig(path, dpi=90)

@@ -14,11 +14,15 @@ from __future__ import annotations
 import os
 import re
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from robust_drake.model_repair import residual as R
 from robust_drake.model_repair.stages import identified_models, reference_rms
+
+if TYPE_CHECKING:  # pragma: no cover
+    from matplotlib.figure import Figure
 
 
 @dataclass
@@ -146,30 +150,55 @@ def _models(res: RepairResult):
     return identified_models(res.inputs, res.baseline, res.estimator, res.selection, res.final)
 
 
-def write_plots(folder, res: RepairResult) -> list[str]:
-    """Residual and torque plots of the validation data into ``folder``; returns the file names."""
+#: at most this many validation segments get a column in ``torque_validate.png``
+MAX_SEGMENT_COLUMNS = 6
+
+
+def torque_validate_figure(res: RepairResult) -> "Figure":
+    """Measured, baseline and repaired joint torques [N m] on the validation data: one column
+    per validation segment (file, or gap-free stretch of one), each on its own time axis t [s],
+    one row per joint (numbered from 0, as in the report); y-limits shared along a row. Nothing is drawn across a file boundary."""
     from robust_drake.plotting import subplots
 
+    inp, base, fin = res.inputs, res.baseline, res.final
+    val = inp.val
+    segs = list(dict.fromkeys(int(s) for s in val.segment))
+    shown = segs[:MAX_SEGMENT_COLUMNS]
+    fig, axes = subplots(val.n, len(shown), figsize=(min(16, 3.5 + 4.2 * len(shown)), 2.8 * val.n + 0.9),
+                         squeeze=False, sharey="row")
+    pb, pf = val.tau - base.val_residual, val.tau - fin.val_residual
+    for c, s in enumerate(shown):
+        m = val.segment == s
+        src = val.conditioning[s].get("source") if s < len(val.conditioning) else None
+        axes[0, c].set_title(os.path.basename(str(src)) if src else f"segment {s + 1}", fontsize=8)
+        for j in range(val.n):
+            ax = axes[j, c]
+            ax.plot(val.t[m], val.tau[m, j], "k", lw=1.2, label="measured")
+            ax.plot(val.t[m], pb[m, j], color="tab:red", lw=0.9, label="baseline model")
+            ax.plot(val.t[m], pf[m, j], color="tab:blue", lw=0.9, label="repaired model")
+            ax.grid(alpha=0.3)
+            if c == 0:
+                ax.set_ylabel(f"tau joint {j} ({inp.joint_names[j]}) [N m]")
+        axes[-1, c].set_xlabel("t [s] (time of this file)")
+    axes[0, -1].legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.02, 1.0), frameon=False)
+    more = f"; first {len(shown)} of {len(segs)} segments shown" if len(segs) > len(shown) else ""
+    fig.suptitle(f"validation torques, one column per validation file{more}", fontsize=10)
+    fig.tight_layout()
+    return fig
+
+
+def write_plots(folder, res: RepairResult) -> list[str]:
+    """Residual and torque plots of the validation data into ``folder``; returns the file names."""
     inp, base, fin = res.inputs, res.baseline, res.final
     fit, val = inp.fit, inp.val
     paths = [
         R.plot_residuals(fit, base.fit.residual, os.path.join(folder, "residual_fit.png"),
-                         "fit data: residual of the baseline (red) and of the repaired model (blue)",
+                         "fit data: torque residual of the baseline (red) and of the repaired model (blue)",
                          other=fin.fit.residual),
         R.plot_residuals(val, base.val_residual, os.path.join(folder, "residual_validate.png"),
-                         "validation data: baseline (red) vs repaired (blue)", other=fin.val_residual),
+                         "validation data: torque residual of the baseline (red) and of the repaired model (blue)", other=fin.val_residual),
     ]
-    fig, axes = subplots(val.n, 1, figsize=(11, 2.6 * val.n), squeeze=False)
-    pb, pf = val.tau - base.val_residual, val.tau - fin.val_residual
-    for j in range(val.n):
-        ax = axes[j, 0]
-        ax.plot(val.t, val.tau[:, j], "k", lw=1, label="measured")
-        ax.plot(val.t, pb[:, j], "r", lw=0.8, label="baseline")
-        ax.plot(val.t, pf[:, j], "b", lw=0.8, label="repaired")
-        ax.set_ylabel(f"tau joint {j} ({inp.joint_names[j]}) [N m]")
-        ax.legend(fontsize=7, loc="upper right")
-    axes[-1, 0].set_xlabel("t [s] (validation files back to back)")
-    fig.tight_layout()
+    fig = torque_validate_figure(res)
     p = os.path.join(folder, "torque_validate.png")
     fig.savefig(p, dpi=80)
     paths.append(p)

@@ -24,6 +24,8 @@ names the joint and variable(s) that carry it.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from robust_drake.identification.data import IdentData, decimation
@@ -168,44 +170,107 @@ def analyse(data: IdentData, residual: np.ndarray, eta_min: float = ETA_MIN, alp
     }
 
 
-def plot_residuals(data: IdentData, residual: np.ndarray, path: str, title: str = "residual",
-                   other: np.ndarray | None = None, labels=("before", "after")) -> str:
-    """One page per call: residual vs q, qd, qdd, tau, time, frequency and around reversals.
+if TYPE_CHECKING:  # pragma: no cover
+    from matplotlib.figure import Figure
 
-    ``other`` (same shape) overlays a second residual (e.g. after repair) in another colour.
+#: the state variables the residual is plotted against, with their SI units
+RESIDUAL_AXES = (("q", "rad"), ("qd", "rad/s"), ("qdd", "rad/s^2"), ("tau", "N m"))
+#: spectra are drawn down to this fraction of their largest value (Welch floors reach 1e-20)
+SPECTRUM_FLOOR = 1e-6
+
+
+def _binned_mean(x: np.ndarray, r: np.ndarray, bins: int = 16, min_count: int = 20):
+    """Mean of ``r`` in ``bins`` equal-width bins of ``x`` over its 1-99 % range (bins with fewer
+    than ``min_count`` samples dropped): (bin centres, means)."""
+    lo, hi = np.quantile(x, [0.01, 0.99])
+    if not hi > lo:
+        return np.array([lo]), np.array([r.mean()])
+    edges = np.linspace(lo, hi, bins + 1)
+    k = np.clip(np.digitize(x, edges) - 1, 0, bins - 1)
+    inside = (x >= lo) & (x <= hi)
+    count = np.bincount(k[inside], minlength=bins)
+    total = np.bincount(k[inside], weights=r[inside], minlength=bins)
+    ok = count >= min_count
+    return 0.5 * (edges[:-1] + edges[1:])[ok], total[ok] / count[ok]
+
+
+def _spectrum_panel(ax, data: IdentData, series) -> None:
+    """Welch PSD of each joint's residual [(N m)^2/Hz], clipped at SPECTRUM_FLOOR of the max."""
+    top = 0.0
+    for r, lab, colr in series:
+        f, P = spectrum(r, data.dt)
+        for j in range(data.n):
+            ax.semilogy(f[1:], P[1:, j], color=colr, ls=("-", "--", ":", "-.")[j % 4], lw=1.2)
+            top = max(top, float(np.nanmax(P[1:, j])) if len(f) > 1 else 0.0)
+    if top > 0:
+        ax.set_ylim(top * SPECTRUM_FLOOR, top * 2)
+    ax.set_xlim(0, min(0.5 / data.dt, 4 * (data.filter.cutoff_hz or 25)))
+    ax.set(xlabel="frequency [Hz]", ylabel="residual PSD [(N m)^2/Hz]", title="spectrum")
+
+
+def _reversal_panel(ax, data: IdentData, series) -> None:
+    """Mean residual of joint j around the zero crossings of qd_j [N m] vs time [s]."""
+    for r, lab, colr in series:
+        for j in range(data.n):
+            lag, prof, k = reversal_profile(data, r, j)
+            ax.plot(lag, prof[:, j], color=colr, ls=("-", "--", ":", "-.")[j % 4], lw=1.2,
+                    label=f"{lab}, joint {j}: {k} reversals")
+    ax.axvline(0, color="0.5", lw=0.6)
+    ax.set(xlabel="time from qd_j reversal [s]", ylabel="mean residual r_j [N m]",
+           title="around velocity reversals")
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0), frameon=False)
+
+
+def residual_figure(data: IdentData, residual: np.ndarray, title: str = "residual",
+                    other: np.ndarray | None = None, labels=("baseline", "repaired")) -> "Figure":
+    """The torque residual r = tau_meas - tau_model [N m] against the state, its spectrum and
+    its mean around velocity reversals, as one matplotlib ``Figure`` of six panels.
+
+    Every panel holds all joints (numbered from 0 as in the report; line style: joint 0 solid,
+    joint 1 dashed, ...) and both
+    models (colour: ``residual`` red, ``other`` blue); the state panels show the mean residual
+    in 16 equal bins (1-99 % range) of q_j [rad], qd_j [rad/s], qdd_j [rad/s^2] and tau_j [N m].
+
+    Parameters
+    ----------
+    data : IdentData
+        The samples the residual belongs to.
+    residual : numpy.ndarray
+        (N, n) residual of the first model [N m].
+    title : str
+        Figure title.
+    other : numpy.ndarray, optional
+        (N, n) residual of a second model (e.g. after repair) [N m].
+    labels : tuple of str
+        Legend names of ``residual`` and ``other``.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        Detached from pyplot.
     """
     from robust_drake.plotting import subplots
 
-    n = data.n
     series = [(residual, labels[0], "tab:red")] + ([(other, labels[1], "tab:blue")] if other is not None else [])
-    cols = ["q", "qd", "qdd", "tau", "t", "freq", "reversal"]
-    fig, axes = subplots(n, len(cols), figsize=(3.0 * len(cols), 2.6 * n), squeeze=False)
-    for j in range(n):
+    fig, axes = subplots(2, 3, figsize=(14, 8.5), squeeze=False)
+    for ax, (name, unit) in zip(axes.flat, RESIDUAL_AXES):
         for r, lab, colr in series:
-            for c, (name, x) in enumerate([("q", data.q[:, j]), ("qd", data.qd[:, j]), ("qdd", data.qdd[:, j]),
-                                           ("tau", data.tau[:, j]), ("t", data.t)]):
-                ax = axes[j, c]
-                ax.plot(x, r[:, j], ",", color=colr, alpha=0.5, label=lab)
-                # binned mean: the structure a person should look at
-                edges = np.quantile(x, np.linspace(0, 1, 21))
-                mid, mean = [], []
-                for a, b in zip(edges[:-1], edges[1:]):
-                    m = (x >= a) & (x <= b)
-                    if m.any():
-                        mid.append(0.5 * (a + b))
-                        mean.append(r[m, j].mean())
-                ax.plot(mid, mean, "-", color=colr, lw=2)
-                ax.set_xlabel(f"{name}{j + 1}" if name != "t" else "t [s]")
-            f, P = spectrum(r, data.dt)
-            axes[j, 5].semilogy(f[1:], P[1:, j], color=colr, label=lab)
-            axes[j, 5].set_xlabel("frequency [Hz]")
-            axes[j, 5].set_xlim(0, min(0.5 / data.dt, 4 * (data.filter.cutoff_hz or 25)))
-            lag, prof, k = reversal_profile(data, r, j)
-            axes[j, 6].plot(lag, prof[:, j], color=colr, label=f"{lab} ({k} reversals)")
-            axes[j, 6].set_xlabel(f"time from qd{j + 1} reversal [s]")
-        axes[j, 0].set_ylabel(f"r{j + 1} [N m]")
-        axes[j, 6].legend(fontsize=7)
+            for j in range(data.n):
+                mid, mean = _binned_mean(getattr(data, name)[:, j], r[:, j])
+                ax.plot(mid, mean, color=colr, ls=("-", "--", ":", "-.")[j % 4], lw=1.4, marker=".", ms=4)
+        ax.axhline(0, color="0.5", lw=0.6)
+        ax.set(xlabel=f"{name}_j [{unit}]", ylabel="mean residual r_j [N m]", title=f"vs {name}")
+    _spectrum_panel(axes[1, 1], data, series)
+    _reversal_panel(axes[1, 2], data, series)
+    for ax in axes.flat:
+        ax.grid(alpha=0.3)
     fig.suptitle(title)
     fig.tight_layout()
-    fig.savefig(path, dpi=80)
+    return fig
+
+
+def plot_residuals(data: IdentData, residual: np.ndarray, path: str, title: str = "residual",
+                   other: np.ndarray | None = None, labels=("baseline", "repaired")) -> str:
+    """Write :func:`residual_figure` to ``path`` (PNG); returns ``path``."""
+    residual_figure(data, residual, title, other, labels).savefig(path, dpi=80)
     return path
