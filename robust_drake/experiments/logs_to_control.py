@@ -110,7 +110,7 @@ def draw_plants(robot, reg, theta0, P, cfg: LogsToControlConfig, rng):
 
     A random direction of relative mass factors f is scaled by t u (u ~ U(0.6, 0.98)), t the
     step at which the (linear in the masses) base parameters leave E; each draw is then checked
-    on the actually perturbed plant and dropped if outside. Returns [(setup, theta, radius)]."""
+    on the actually perturbed plant and dropped if outside. Returns [(setup, mass factors - 1, radius)]."""
     from robust_drake.uncertainty.confidence import mahalanobis_radius
 
     names, dirs = _mass_directions(robot, rng, 20 * cfg.draws, cfg.mass_spread)
@@ -124,11 +124,12 @@ def draw_plants(robot, reg, theta0, P, cfg: LogsToControlConfig, rng):
         if a <= 0 or c >= 0:
             continue
         t_star = (-b + np.sqrt(b * b - 4 * a * c)) / (2 * a)
-        setup = _setter(names, min(1.0, t_star) * rng.uniform(0.6, 0.98) * f)
+        fk = min(1.0, t_star) * rng.uniform(0.6, 0.98) * f
+        setup = _setter(names, fk)
         th, _, _ = _draw_theta_and_M(robot, reg, setup, [])
         r = mahalanobis_radius(theta0, P, th)
         if r <= 1.0:
-            out.append((setup, th, r))
+            out.append((setup, fk, r))
         if len(out) == cfg.draws:
             return out
     raise RobustDrakeError(f"only {len(out)} of {cfg.draws} mass draws fell inside the confidence set")
@@ -164,14 +165,14 @@ def run_logs_to_control(cfg: LogsToControlConfig | None = None, out_dir: str | N
     ell = Ellipsoid(theta0, P)
     q_grid = [np.array([0.0, q2]) for q2 in np.linspace(-np.pi, np.pi, 73)]
     draws = []
-    for setup, th, r in draw_plants(cfg.robot, reg, theta0, P, cfg, rng):
+    for setup, fk, r in draw_plants(cfg.robot, reg, theta0, P, cfg, rng):
         loop, res = _closed_loop(cfg, "calafiore", {"ellipsoid": ell}, setup)
         c = loop.controller
         _, m_min, m_max = _draw_theta_and_M(cfg.robot, reg, setup, q_grid)
         bound = ultimate_error_bound(c.K, c.Lambda, c.epsilon, m_min, m_max)
         late = res.t >= cfg.transient
         err = float(np.max(np.abs(res.q - res.q_d)[late]))
-        draws.append({"radius": r, "bound": bound, "max_error": err, "diverged": bool(res.diverged),
+        draws.append({"radius": r, "mass_change": [float(x) for x in fk], "bound": bound, "max_error": err, "diverged": bool(res.diverged),
                       "epsilon": float(c.epsilon)})
     _, pd = _closed_loop(cfg, "pd", {}, lambda plant, ctx: None)
     pd_err = float(np.max(np.abs(pd.q - pd.q_d)[pd.t >= cfg.transient]))
