@@ -74,3 +74,40 @@ def test_every_draw_stays_within_the_predicted_bound(loop):
 def test_bound_is_not_vacuous(loop):
     """The guaranteed bound is far below what PD with the same K, Lambda reaches on the URDF arm."""
     assert loop["bound"] < 0.2 * loop["pd_max_error"], (loop["bound"], loop["pd_max_error"])
+
+
+def _imi_coverage(bounds, n_samples=20, seeds=40, alpha=0.01):
+    from robust_drake.experiments.calafiore import simulate_identification
+    from robust_drake.identification.least_squares import solve_wls
+    from robust_drake.regressor import imi_scara_regressor
+
+    hits = 0
+    for seed in range(seeds):
+        d = simulate_identification(n_samples, seed, bounds=bounds)
+        Y = imi_scara_regressor(d["q"], d["qd"], d["qdd"])
+        fit = solve_wls(Y, d["tau"], [f"t{i}" for i in range(8)], warn=False)
+        th0, P = confidence_ellipsoid(_model(fit.theta, fit.cov), alpha)
+        hits += mahalanobis_radius(th0, P, d["theta_true"]) <= 1.0
+    return hits / seeds
+
+
+def test_chi2_set_is_sound_for_torque_noise_but_not_for_errors_in_variables():
+    """IMI SCARA, 20 D-optimal samples (CI section 5): with CI's torque noise only the 99 % set
+    holds the truth in >= 90 % of 40 experiments (measured 100 %); with CI's acceleration noise
+    too (noise inside the regressor: LS is biased) it does not (measured 72.5 %), which is why the
+    repair switches to IV when its Hausman test flags errors in variables."""
+    from robust_drake.uncertainty.regression import CI_BOUNDS
+
+    assert _imi_coverage({"tau": CI_BOUNDS["tau"]}) >= 0.9
+    assert _imi_coverage(CI_BOUNDS) < 0.9
+
+
+def test_chi2_set_is_smaller_than_the_lfr_sdp_set_on_the_same_samples():
+    """Torque noise only (both sets sound): measured trace(P_chi2) / trace(P_SDP) = 0.43 at 20
+    samples; both hold the truth."""
+    from robust_drake.experiments.logs_to_control import compare_with_sdp
+    from robust_drake.uncertainty.regression import CI_BOUNDS
+
+    c = compare_with_sdp(20, bounds={"tau": CI_BOUNDS["tau"]})
+    assert c["trace_ratio"] < 0.6 and c["volume_ratio"] < 1e-3, c
+    assert c["truth_radius_chi2"] <= 1.0 and c["truth_radius_sdp"] <= 1.0, c

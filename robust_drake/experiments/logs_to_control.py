@@ -185,23 +185,25 @@ def run_logs_to_control(cfg: LogsToControlConfig | None = None, out_dir: str | N
             "max_error": max(d["max_error"] for d in draws), "draws": draws, "pd_max_error": pd_err}
 
 
-def compare_with_sdp(n_samples: int = 20, alpha: float = 0.01, seed: int = 0) -> dict:
+def compare_with_sdp(n_samples: int = 20, alpha: float = 0.01, seed: int = 0, bounds=None) -> dict:
     """Chi2 confidence set against CI's LFR SDP ellipsoid on the same IMI SCARA samples.
 
-    Data: ``experiments.calafiore.simulate_identification`` (noise uniform within CI's bounds on
-    tau and qdd). The chi2 set comes from the two-step weighted LS of those samples; the SDP set
+    Data: ``experiments.calafiore.simulate_identification`` (noise uniform within ``bounds``,
+    default CI's bounds on tau and qdd). The chi2 set comes from the two-step weighted LS of those samples; the SDP set
     (``uncertainty.ellipsoid.solve_ellipsoid``) bounds the LS estimate over every admissible
     noise. Returns sizes (trace, volume = sqrt(det P)), seconds and both sets' radius of the truth.
     """
     import time
 
-    from robust_drake.experiments.calafiore import run_ellipsoid_experiment, simulate_identification
+    from robust_drake.experiments.calafiore import simulate_identification
     from robust_drake.identification.least_squares import solve_wls
     from robust_drake.model_repair.model import IdentifiedModel
     from robust_drake.regressor import imi_scara_regressor
     from robust_drake.uncertainty.confidence import confidence_ellipsoid, mahalanobis_radius
+    from robust_drake.uncertainty.ellipsoid import solve_ellipsoid
+    from robust_drake.uncertainty.regression import CI_BOUNDS, build_uncertainty_model
 
-    data = simulate_identification(n_samples, seed)
+    data = simulate_identification(n_samples, seed, bounds=bounds)
     t0 = time.perf_counter()
     Y = imi_scara_regressor(data["q"], data["qd"], data["qdd"])
     fit = solve_wls(Y, data["tau"], [f"theta{i + 1}" for i in range(Y.shape[2])], warn=False)
@@ -211,12 +213,14 @@ def compare_with_sdp(n_samples: int = 20, alpha: float = 0.01, seed: int = 0) ->
     th_c, P_c = confidence_ellipsoid(model, alpha)
     t_chi2 = time.perf_counter() - t0
     t0 = time.perf_counter()
-    sdp = run_ellipsoid_experiment(n_samples, seed=seed, data=data, draws=0)
+    unc = build_uncertainty_model(imi_scara_regressor, data["q"], data["qd"], data["qdd"], data["tau"],
+                                  CI_BOUNDS if bounds is None else bounds)
+    sdp = solve_ellipsoid(unc, certify_draws=0)
     t_sdp = time.perf_counter() - t0
-    P_s = np.asarray(sdp["_result"].P)
+    P_s = sdp.P
     ld_c, ld_s = np.linalg.slogdet(P_c)[1], np.linalg.slogdet(P_s)[1]
     return {"n_samples": n_samples, "alpha": alpha, "trace_ratio": float(np.trace(P_c) / np.trace(P_s)),
             "volume_ratio": float(np.exp(0.5 * (ld_c - ld_s))),
             "truth_radius_chi2": mahalanobis_radius(th_c, P_c, data["theta_true"]),
-            "truth_radius_sdp": float(sdp["true_theta_radius"]),
+            "truth_radius_sdp": float(sdp.ellipsoid.radius(data["theta_true"])),
             "seconds_chi2": t_chi2, "seconds_sdp": t_sdp}
