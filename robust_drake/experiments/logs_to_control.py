@@ -162,6 +162,10 @@ def run_logs_to_control(cfg: LogsToControlConfig | None = None, out_dir: str | N
     if list(reg.base_names) != list(model.base_names):
         raise RobustDrakeError("identified base parameters differ from the controller's regressor")
     truth_r = mahalanobis_radius(theta0, P, reg.base_parameters())
+    if truth_r > 1.0:
+        raise RobustDrakeError(f"{cfg.robot}: the true base parameters lie outside the identified "
+                               f"{100 * (1 - cfg.alpha):g} % set (radius {truth_r:.3g}); the experiment "
+                               "does not identify this arm")
     ell = Ellipsoid(theta0, P)
     q_grid = [np.array([0.0, q2]) for q2 in np.linspace(-np.pi, np.pi, 73)]
     draws = []
