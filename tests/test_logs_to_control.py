@@ -111,3 +111,18 @@ def test_chi2_set_is_smaller_than_the_lfr_sdp_set_on_the_same_samples():
     c = compare_with_sdp(20, bounds={"tau": CI_BOUNDS["tau"]})
     assert c["trace_ratio"] < 0.6 and c["volume_ratio"] < 1e-3, c
     assert c["truth_radius_chi2"] <= 1.0 and c["truth_radius_sdp"] <= 1.0, c
+
+
+def test_cli_prints_the_loop_as_json_and_refuses_bad_options(capsys):
+    import json
+
+    from robust_drake.cli import main
+
+    assert main(["logs-to-control", "--draws", "2", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["uncertainty"]["kind"] == "ellipsoid" and out["rho"] > 0
+    assert len(out["draws"]) == 2 and out["max_error"] <= out["bound"]
+    for argv, msg in ((["--alpha", "0"], "--alpha"), (["--draws", "0"], "--draws"),
+                      (["--transient", "3"], "--transient")):
+        assert main(["logs-to-control", *argv]) == 2
+        assert msg in capsys.readouterr().err
