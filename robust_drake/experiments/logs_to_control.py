@@ -68,14 +68,14 @@ def identify(cfg: LogsToControlConfig, out_dir: str):
 
 
 def _mass_directions(robot, rng, count, spread):
-    """Random relative mass factors per link (count, links)."""
+    """Names of the bodies with mass and random relative mass changes (count, bodies)."""
+    from pydrake.multibody.tree import BodyIndex
+
     from robust_drake.models import make_plant
 
     plant = make_plant(robot)
-    names = [plant.get_body(b).name() for b in plant.GetBodyIndices(plant.GetModelInstanceByName(robot))
-             if plant.get_body(b).default_mass() > 0] if plant.HasModelInstanceNamed(robot) else []
-    if not names:
-        names = [plant.get_body(i).name() for i in range(1, plant.num_bodies()) if plant.get_body(i).default_mass() > 0]
+    bodies = (plant.get_body(BodyIndex(i)) for i in range(1, plant.num_bodies()))  # 0 is the world
+    names = [b.name() for b in bodies if b.default_mass() > 0]
     return names, rng.uniform(-spread, spread, size=(count, len(names)))
 
 
