@@ -166,6 +166,18 @@ def test_full_rank_not_certified_when_the_acceleration_noise_can_cancel_the_regr
     assert check_full_rank(model, draws=500).verdict in ("refuted", "undecided")
 
 
+def test_full_rank_with_torque_bounds_only_is_the_nominal_singular_value():
+    """With no uncertainty in the regressor (torque bounds only) D(delta) = D0: the certificate is
+    sigma_min(D0), computed here with numpy's SVD (this case used to raise an IndexError)."""
+    from robust_drake.uncertainty.full_rank import check_full_rank
+
+    model = _ci_model(5, bounds={"tau": [0.5, 0.5]})
+    res = check_full_rank(model, draws=20)
+    D0 = np.asarray(model.D0, float).reshape(-1, model.n_params)
+    assert res.verdict == "certified"
+    assert res.sigma_min_bound == pytest.approx(np.linalg.svd(D0, compute_uv=False)[-1], rel=1e-9)
+
+
 # ------------------------------------------------------------------ CI fig. 3 and the settling time
 def test_torque_reconstruction_improves_with_more_samples():
     """CI section 5.1 on fig. 3: the 5-sample reconstruction 'could be improved by taking into account a

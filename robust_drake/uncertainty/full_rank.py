@@ -113,6 +113,9 @@ def schur_mu(D0, L, R, scalars, s) -> tuple[float, float]:
     Sd = np.asarray(s, float)[np.asarray(scalars, int)]
     Q = L.T @ L + np.diag(Sd)
     wq = np.linalg.eigvalsh(Q)
+    if wq.size == 0:  # no uncertain regressor entry (only torque bounds): D(delta) = D0
+        w = np.linalg.eigvalsh(D0.T @ D0)
+        return float(w[0]), certificate_tol(1.0) * float(np.abs(w).max())
     if wq[0] <= psd_tol(wq):
         return -np.inf, 0.0
     G = D0.T @ D0 - (R.T * Sd) @ R - D0.T @ L @ np.linalg.solve(Q, L.T @ D0)
