@@ -141,10 +141,11 @@ def _worker_init(owner_pid: int, owner_start, tempdir: str | None) -> None:
 
 def _worker_initargs(ctx) -> tuple:
     """(owner pid, its start time, its multiprocessing temp folder if it has one)."""
-    if ctx.get_start_method() == "forkserver":
-        import multiprocessing.util
+    import multiprocessing.util as mp_util  # (a bare "import multiprocessing.util" here would
+    # make the name multiprocessing local to this function)
 
-        multiprocessing.util.get_temp_dir()  # the fork server's socket goes there anyway
+    if ctx.get_start_method() == "forkserver":
+        mp_util.get_temp_dir()  # the fork server's socket goes there anyway
     pid = os.getpid()
     start = _proc_start_time(pid)
     tempdir = multiprocessing.current_process()._config.get("tempdir")
@@ -172,9 +173,24 @@ def default_workers() -> int:
     return max(1, os.cpu_count() or 1)
 
 
+#: longest AF_UNIX socket path (Linux sun_path is 108 bytes with the terminating NUL)
+AF_UNIX_PATH_MAX = 107
+
+
+def forkserver_socket_fits() -> bool:
+    """Does the fork server's listener socket (``TMPDIR/pymp-XXXXXXXX/listener-XXXXXXXX``) fit in
+    an AF_UNIX address? With a long TMPDIR it does not, and the first pool would fail with
+    "AF_UNIX path too long"; :func:`mp_context` then uses the spawn start method."""
+    import tempfile
+
+    return len(os.path.join(tempfile.gettempdir(), "pymp-xxxxxxxx", "listener-xxxxxxxx")) <= AF_UNIX_PATH_MAX
+
+
 def mp_context(method: str | None = None):
     """The multiprocessing context for local pools (forkserver preloading pydrake, or spawn)."""
     method = method or START_METHOD
+    if method == "forkserver" and not forkserver_socket_fits():
+        method = "spawn"  # the fork server's AF_UNIX socket would not fit under TMPDIR
     ctx = multiprocessing.get_context(method)
     if method == "forkserver":
         # Only takes effect when the fork server starts (first pool in this process).

@@ -364,3 +364,23 @@ def test_batch_refuses_a_runaway_scenario_before_running_anything(tmp_path):
     assert not out.exists()
     with pytest.raises(RobustDrakeError, match="divergence_error"):
         run_batch([Scenario(duration=0.05)], workers=1, progress=False, divergence_error=-1.0)
+
+
+def test_batch_runs_under_a_tmpdir_too_long_for_the_fork_server(tmp_path):
+    """The fork server's AF_UNIX socket does not fit under a ~100-character TMPDIR; the batch
+    falls back to spawn and runs (it used to fail with "AF_UNIX path too long")."""
+    spec = _write(tmp_path / "spec.yaml", """
+        controllers: [pd]
+        duration: 0.2
+        seeds: [0, 1]
+        """)
+    long_tmp = pathlib.Path(tempfile.mkdtemp(prefix="rdk" + "x" * 90, dir="/tmp"))
+    try:
+        out = subprocess.run(
+            [sys.executable, "-m", "robust_drake.cli", "batch", spec, "--out", str(tmp_path / "r.parquet"),
+             "--workers", "2", "--no-progress", "--json"],
+            capture_output=True, text=True, timeout=300, env={**_env(), "TMPDIR": str(long_tmp)})
+        assert out.returncode == 0, out.stderr[-2000:]
+        assert "Traceback" not in out.stderr
+    finally:
+        shutil.rmtree(long_tmp, ignore_errors=True)

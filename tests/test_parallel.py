@@ -128,3 +128,19 @@ def test_dask_local_cluster_client_and_address():
                                                   progress=False)]
             assert os.getpid() not in pids
             assert set(pids) <= set(client.run(os.getpid).values())
+
+
+def test_long_tmpdir_falls_back_to_spawn(monkeypatch):
+    """A TMPDIR too long for the fork server's AF_UNIX socket (108 bytes) would make the first
+    pool fail with "AF_UNIX path too long": the context falls back to spawn."""
+    import tempfile
+
+    from robust_drake import parallel
+
+    if parallel.START_METHOD != "forkserver":
+        pytest.skip("no fork server on this platform")
+    monkeypatch.setattr(tempfile, "tempdir", "/tmp/" + "x" * 90)
+    assert not parallel.forkserver_socket_fits()
+    assert parallel.mp_context().get_start_method() == "spawn"
+    monkeypatch.setattr(tempfile, "tempdir", "/tmp")
+    assert parallel.mp_context().get_start_method() == "forkserver"
