@@ -151,3 +151,14 @@ def test_meshcat_view_records_the_run():
     assert meshcat.HasPath("/drake/visualizer/d2r2")  # the arm's geometry reached the viewer
     with pytest.raises(Exception, match="before the loop's first simulate"):
         add_meshcat(loop, meshcat)
+
+
+def test_diagram_rendered_to_svg_where_graphviz_is_installed(tmp_path):
+    import shutil
+
+    if shutil.which("dot") is None:
+        pytest.skip("Graphviz's 'dot' is not installed (the message is tested above)")
+    svg = tmp_path / "loop.svg"
+    assert main(["simulate", "--duration", "0.05", "--diagram", str(svg)]) == 0
+    text = svg.read_text()
+    assert "<svg" in text and "controller" in text and "plant" in text
