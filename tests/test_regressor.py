@@ -5,6 +5,8 @@ import math
 import numpy as np
 import pytest
 
+from dynamics_reference import christoffel_C, mass_matrix_and_derivative
+
 from robust_drake.errors import RobustDrakeError
 from robust_drake.models import (
     D2R2_THETA_LOADED,
@@ -32,26 +34,6 @@ CASES = [(r, load, "numeric") for r, load in ALL] + [(r, load, "symbolic") for r
 def _states(n, N, seed):
     rng = np.random.default_rng(seed)
     return rng.uniform(-math.pi, math.pi, (N, n)), rng.normal(0, 2, (N, n)), rng.normal(0, 5, (N, n))
-
-
-def _mass_matrix_and_derivative(plant, q):
-    """M(q) and dM/dq (n, n, n) via AutoDiff through Drake."""
-    from pydrake.autodiffutils import InitializeAutoDiff
-
-    ad = plant.ToAutoDiffXd()
-    ctx = ad.CreateDefaultContext()
-    ad.SetPositions(ctx, InitializeAutoDiff(q).ravel())
-    Mad = ad.CalcMassMatrix(ctx)
-    n = len(q)
-    M = np.array([[Mad[i, j].value() for j in range(n)] for i in range(n)])
-    dM = np.array([[Mad[i, j].derivatives() for j in range(n)] for i in range(n)])
-    return M, dM
-
-
-def _christoffel_C(dM, qd):
-    """C_ij = sum_k 1/2 (dM_ij/dq_k + dM_ik/dq_j - dM_jk/dq_i) qd_k."""
-    c = 0.5 * (dM + np.transpose(dM, (0, 2, 1)) - np.transpose(dM, (2, 0, 1)))
-    return c @ qd
 
 
 @pytest.mark.parametrize("robot,load,method", CASES)
@@ -119,6 +101,8 @@ def test_base_parameters_follow_the_context():
 def test_d2r2_closed_form_regressor(load, table):
     plant = make_plant("d2r2", load)
     ctx = plant.CreateDefaultContext()
+    ad = plant.ToAutoDiffXd()
+    ad_ctx = ad.CreateDefaultContext()
     theta = d2r2_theta_from_plant(plant, ctx)
     np.testing.assert_allclose(theta, table, atol=1e-3)
     q, qd, qdd = _states(2, 20, seed=8)
@@ -129,8 +113,8 @@ def test_d2r2_closed_form_regressor(load, table):
     rng = np.random.default_rng(9)
     for k in range(5):
         v, a = rng.normal(size=2), rng.normal(size=2)
-        M, dM = _mass_matrix_and_derivative(plant, q[k])
-        C = _christoffel_C(dM, qd[k])
+        M, dM = mass_matrix_and_derivative(ad, ad_ctx, q[k])
+        C = christoffel_C(dM, qd[k])
         plant.SetPositions(ctx, q[k])
         plant.SetVelocities(ctx, qd[k])
         np.testing.assert_allclose(C @ qd[k], plant.CalcBiasTerm(ctx), atol=1e-12)
@@ -179,11 +163,13 @@ def test_skew_symmetry_of_Mdot_minus_2C(robot, load):
     """JS eq. 6 along random states; C from Drake's M (Christoffel), checked against Drake's bias."""
     plant = make_plant(robot, load)
     ctx = plant.CreateDefaultContext()
+    ad = plant.ToAutoDiffXd()
+    ad_ctx = ad.CreateDefaultContext()
     q, qd, _ = _states(2, 8, seed=21)
     for k in range(8):
-        M, dM = _mass_matrix_and_derivative(plant, q[k])
+        M, dM = mass_matrix_and_derivative(ad, ad_ctx, q[k])
         Mdot = dM @ qd[k]
-        C = _christoffel_C(dM, qd[k])
+        C = christoffel_C(dM, qd[k])
         plant.SetPositions(ctx, q[k])
         plant.SetVelocities(ctx, qd[k])
         np.testing.assert_allclose(C @ qd[k], plant.CalcBiasTerm(ctx), atol=1e-10 * max(1.0, np.abs(M).max()))

@@ -11,6 +11,8 @@ import math
 import numpy as np
 import pytest
 
+from dynamics_reference import christoffel_C, mass_matrix_and_derivative
+
 from robust_drake.errors import RobustDrakeError
 from robust_drake.models import ROBOTS, d2r2_theta_from_plant, make_plant, resolve_urdf, set_d2r2_theta
 from robust_drake.regressor import InverseDynamicsRegressor, d2r2_regressor
@@ -22,24 +24,6 @@ def _states(n, N, seed):
     rng = np.random.default_rng(seed)
     return (rng.uniform(-math.pi, math.pi, (N, n)), rng.normal(0, 2, (N, n)), rng.normal(0, 2, (N, n)),
             rng.normal(0, 5, (N, n)))
-
-
-def _mass_matrix_and_derivative(ad_plant, ad_ctx, q):
-    """M(q) and dM/dq (n, n, n) by AutoDiff through Drake's CalcMassMatrix."""
-    from pydrake.autodiffutils import InitializeAutoDiff
-
-    ad_plant.SetPositions(ad_ctx, InitializeAutoDiff(q).ravel())
-    Mad = ad_plant.CalcMassMatrix(ad_ctx)
-    n = len(q)
-    M = np.array([[Mad[i, j].value() for j in range(n)] for i in range(n)])
-    dM = np.array([[Mad[i, j].derivatives() for j in range(n)] for i in range(n)])
-    return M, dM
-
-
-def _christoffel_C(dM, qd):
-    """C_ij = sum_k 1/2 (dM_ij/dq_k + dM_ik/dq_j - dM_jk/dq_i) qd_k."""
-    c = 0.5 * (dM + np.transpose(dM, (0, 2, 1)) - np.transpose(dM, (2, 0, 1)))
-    return c @ qd
 
 
 @pytest.mark.parametrize("robot,load", ALL)
@@ -55,12 +39,12 @@ def test_slotine_li_equals_drake_M_a_plus_C_v_plus_g(robot, load):
     assert Y.shape == (8, reg.n, reg.p_base)
     Yq = reg.slotine_li(q, qd, qd, a)
     for k in range(8):
-        M, dM = _mass_matrix_and_derivative(ad, ad_ctx, q[k])
+        M, dM = mass_matrix_and_derivative(ad, ad_ctx, q[k])
         plant.SetPositions(ctx, q[k])
         plant.SetVelocities(ctx, qd[k])
         np.testing.assert_allclose(M, plant.CalcMassMatrix(ctx), rtol=1e-12, atol=1e-12)
         g = -plant.CalcGravityGeneralizedForces(ctx)
-        C = _christoffel_C(dM, qd[k])
+        C = christoffel_C(dM, qd[k])
         ref = M @ a[k] + C @ v[k] + g
         scale = np.abs(M @ a[k]).max() + np.abs(C @ v[k]).max() + np.abs(g).max()
         assert np.abs(Y[k] @ theta - ref).max() <= 1e-9 * scale, (robot, k)
@@ -149,9 +133,9 @@ def test_symbolic_and_numeric_routes_agree_and_damping_acts_on_qd(tmp_path):
         theta = reg.base_parameters()
         Ys[method] = reg.slotine_li(q, qd, v, a)
         for k in range(6):
-            M, dM = _mass_matrix_and_derivative(ad, ad_ctx, q[k])
+            M, dM = mass_matrix_and_derivative(ad, ad_ctx, q[k])
             plant.SetPositions(ctx, q[k])
-            ref = M @ a[k] + _christoffel_C(dM, qd[k]) @ v[k] - plant.CalcGravityGeneralizedForces(ctx)
+            ref = M @ a[k] + christoffel_C(dM, qd[k]) @ v[k] - plant.CalcGravityGeneralizedForces(ctx)
             ref[1] += 0.7 * qd[k, 1]
             assert np.abs(Ys[method][k] @ theta - ref).max() <= 1e-9 * np.abs(ref).max()
             np.testing.assert_allclose(reg.slotine_li_single(q[k], qd[k], v[k], a[k]), Ys[method][k],
