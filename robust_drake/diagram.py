@@ -42,8 +42,8 @@ from robust_drake.metrics import error_criteria, torque_statistics
 from robust_drake.models import ArmSpec, ROBOTS, add_arm, get_arm, set_d2r2_theta
 from robust_drake.registry import BuildContext, block_label, is_block_spec, make_block
 from robust_drake.systems.forces import add_force_blocks, sum_into_plant
-from robust_drake.systems.friction import CoulombViscousFriction, FixedFrictionCompensation
-from robust_drake.systems.sensors import QuantizingEncoder, quantize
+from robust_drake.systems.friction import CompiledCoulombViscousFriction, FixedFrictionCompensation
+from robust_drake.systems.sensors import CompiledQuantizingEncoder, quantize
 from robust_drake.trajectories import ReferenceTrajectory, make_reference
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -378,7 +378,15 @@ class ClosedLoop:
 
     Built in the order of the signal flow (module docstring): plant (``models.add_arm``),
     reference, optional flexibility, encoder, observer, controller, command chain (fixed friction
-    compensation, saturation), plant-side forces (``systems.forces``), loggers."""
+    compensation, saturation), plant-side forces (``systems.forces``), loggers.
+
+    The encoder and the plant friction are the C++ blocks (``SymbolicVectorSystem``) of
+    :mod:`robust_drake.systems.sensors` and :mod:`robust_drake.systems.friction`, tested equal to
+    their Python references; a subclass may set ``encoder_block`` / ``friction_block`` to other
+    classes with the same signature and ports (benchmarks/bench_closed_loop.py runs the Python ones)."""
+
+    encoder_block = CompiledQuantizingEncoder  # (n, theta_m): state -> q
+    friction_block = CompiledCoulombViscousFriction  # (n, coulomb, viscous): state -> generalized_force
 
     def __init__(self, config: ClosedLoopConfig):
         self.config = config.resolved()
@@ -431,7 +439,7 @@ class ClosedLoop:
     def _add_encoder(self):
         """The quantising encoder on the plant (or the flexible drive's encoder side)."""
         builder, plant = self.builder, self.plant
-        enc = builder.AddSystem(QuantizingEncoder(self.n, self.config.encoder_resolution))
+        enc = builder.AddSystem(self.encoder_block(self.n, self.config.encoder_resolution))
         enc.set_name("encoder")
         builder.Connect(plant.get_state_output_port() if self.flexibility is None
                         else self.flexibility.encoder_state, enc.get_input_port(0))
@@ -511,7 +519,7 @@ class ClosedLoop:
         forces = [tau] if self.flexibility is None else self.flexibility.forces(builder, tau)
         self.effect_blocks = []
         if c.plant_friction is not None:
-            fr = CoulombViscousFriction(n, c.plant_friction["coulomb"], c.plant_friction["viscous"])
+            fr = self.friction_block(n, c.plant_friction["coulomb"], c.plant_friction["viscous"])
             fr.set_name("plant_friction")
             self.effect_blocks.append(fr)
         for i, eff in enumerate(c.effects):
