@@ -112,7 +112,7 @@ def exact_velocity(ctx):
 
 class NoLogs(ClosedLoop):
     def _add_logs(self, x_d, u, tau, obs):
-        self._logs, self.extra_logs = {}, {}
+        self._log, self.extra_logs = None, {}
 
 
 class NoLogsExactQ(NoLogs):
