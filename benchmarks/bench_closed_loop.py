@@ -39,6 +39,7 @@ from robust_drake.diagram import MAX_INTEGRATOR_STEP, ClosedLoop, ClosedLoopConf
 from robust_drake.models import add_arm
 from robust_drake.systems.friction import CoulombViscousFriction, D2R2_COULOMB, D2R2_VISCOUS
 from robust_drake.systems.sensors import QuantizingEncoder
+from robust_drake.trajectories import ReferenceTrajectory
 
 PANDA_READY = [0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785]
 PANDA_LIMITS = [87.0] * 4 + [12.0] * 3
@@ -122,6 +123,7 @@ class NoLogsExactQ(NoLogs):
 class PythonBlocks(ClosedLoop):
     """The full loop with the Python reference blocks (the design before issue 14's speed work)."""
 
+    reference_block = ReferenceTrajectory
     encoder_block = QuantizingEncoder
     friction_block = CoulombViscousFriction
 
@@ -158,7 +160,7 @@ def d2r2_rows(seconds):
                                                             seconds),
         "+ saturation": lambda: advance(NoLogs(ClosedLoopConfig(**base)), seconds),
         "+ loggers (= full loop)": lambda: advance(ClosedLoop(ClosedLoopConfig(**base)), seconds),
-        "full loop, Python encoder/friction/estimator": lambda: advance(PythonBlocks(ClosedLoopConfig(
+        "full loop, Python reference/encoder/friction/estimator": lambda: advance(PythonBlocks(ClosedLoopConfig(
             observer_params={"python": True}, **base)), seconds),
     }
 

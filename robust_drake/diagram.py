@@ -44,7 +44,8 @@ from robust_drake.registry import BuildContext, block_label, is_block_spec, make
 from robust_drake.systems.forces import add_force_blocks, sum_into_plant
 from robust_drake.systems.friction import CompiledCoulombViscousFriction, FixedFrictionCompensation
 from robust_drake.systems.sensors import CompiledQuantizingEncoder, quantize
-from robust_drake.trajectories import ReferenceTrajectory, make_reference
+from robust_drake.systems.sampled_reference import SampledReference
+from robust_drake.trajectories import make_reference
 
 if TYPE_CHECKING:  # pragma: no cover
     import pandas as pd
@@ -380,11 +381,13 @@ class ClosedLoop:
     reference, optional flexibility, encoder, observer, controller, command chain (fixed friction
     compensation, saturation), plant-side forces (``systems.forces``), loggers.
 
-    The encoder and the plant friction are the C++ blocks (``SymbolicVectorSystem``) of
-    :mod:`robust_drake.systems.sensors` and :mod:`robust_drake.systems.friction`, tested equal to
-    their Python references; a subclass may set ``encoder_block`` / ``friction_block`` to other
+    The reference source, the encoder and the plant friction are the C++ blocks (``SymbolicVectorSystem``) of
+    :mod:`robust_drake.systems.sampled_reference`, :mod:`robust_drake.systems.sensors` and
+    :mod:`robust_drake.systems.friction`, tested equal to their Python references (at the ticks for
+    the reference); a subclass may set ``reference_block`` / ``encoder_block`` / ``friction_block`` to other
     classes with the same signature and ports (benchmarks/bench_closed_loop.py runs the Python ones)."""
 
+    reference_block = SampledReference  # (reference, period): -> x_d, with tabulate(duration)
     encoder_block = CompiledQuantizingEncoder  # (n, theta_m): state -> q
     friction_block = CompiledCoulombViscousFriction  # (n, coulomb, viscous): state -> generalized_force
 
@@ -431,7 +434,7 @@ class ClosedLoop:
         check_run_size(c.duration or self.reference.duration, c.rate)
         if self.reference.n != self.n:
             raise RobustDrakeError(f"trajectory {c.trajectory!r} has {self.reference.n} joints, robot has {self.n}")
-        src = builder.AddSystem(ReferenceTrajectory(self.reference, self.period))
+        src = builder.AddSystem(self.reference_block(self.reference, self.period))
         self.reference_source = src
         src.set_name("reference")
         return src.get_output_port(0)
