@@ -2,12 +2,14 @@
 
 The finite-difference estimators of JS section 6 (eqs. 60-67, :mod:`robust_drake.systems.estimators`
 and :class:`robust_drake.systems.observers.AveragingVelocityObserver`) are linear discrete systems:
-with the history ``h`` and the held estimate ``s = [v, v_error]`` as state x = [h, s] and
-u = [q, x_d] as input,
+with the history ``h`` as state and u = [q, x_d] as input,
 
-    [v, v_error] = C_e x + D_e u          (the estimate of this tick, direct feedthrough)
-    h+           = A_h x + B_h u          (the Python ``advance`` after the estimate)
-    s+           = [v, v_error]
+    [v, v_error] = C h + D u          (the estimate of this tick, direct feedthrough)
+    h+           = A h + B u          (the Python ``advance`` after the estimate)
+
+and the held estimate ``v_sampled`` is a ``ZeroOrderHold`` of [v, v_error] at the same ticks (a
+state output, no feedthrough: one LinearSystem output holding it would make the whole port
+feedthrough and close an algebraic loop through the friction compensation and a flexible drive).
 
 :class:`LinearObserver` reads A, B, C, D off a Python :class:`~robust_drake.systems.observers.DiscreteObserver`
 (the reference: its ``estimate`` and ``advance`` evaluated on unit vectors), checks on random
@@ -23,7 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 from pydrake.systems.framework import Diagram, DiagramBuilder
-from pydrake.systems.primitives import Demultiplexer, LinearSystem, Multiplexer
+from pydrake.systems.primitives import Demultiplexer, LinearSystem, Multiplexer, ZeroOrderHold
 
 from robust_drake.errors import RobustDrakeError
 
@@ -32,19 +34,18 @@ LINEARITY_TOL = 1e-9
 
 
 def observer_matrices(ref) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """(A, B, C, D) of a linear :class:`DiscreteObserver` ``ref``, state x = [h, v_s, v_error_s],
-    input u = [q, q_d, qd_d, qdd_d], output y = [v, v_error, v_s, v_error_s] (see module docstring).
+    """(A, B, C, D) of a linear :class:`DiscreteObserver` ``ref``: state h (its history), input
+    u = [q, q_d, qd_d, qdd_d], output y = [v, v_error] (see module docstring).
 
-    Column j is the Python law evaluated at the j-th unit vector of (x, u) (exact for a linear law:
+    Column j is the Python law evaluated at the j-th unit vector of (h, u) (exact for a linear law:
     one product with 1.0 per entry).  Raises RobustDrakeError if the law is not linear in (h, u)."""
     n, H = ref.n, ref.history_size
-    nx, nu = H + 2 * n, 4 * n
+    nx, nu = H, 4 * n
 
     def law(x, u):
-        h, q, q_d, qd_d = x[:H], u[:n], u[n:2 * n], u[2 * n:3 * n]
-        v, ve = (np.asarray(z, dtype=float) for z in ref.estimate(h, q, q_d, qd_d, 0.0))
-        h_new = np.asarray(ref.advance(h, q, q_d, qd_d, v, ve, 0.0), dtype=float)
-        return np.concatenate([h_new, v, ve]), np.concatenate([v, ve, x[H:]])
+        q, q_d, qd_d = u[:n], u[n:2 * n], u[2 * n:3 * n]
+        v, ve = (np.asarray(z, dtype=float) for z in ref.estimate(x, q, q_d, qd_d, 0.0))
+        return np.asarray(ref.advance(x, q, q_d, qd_d, v, ve, 0.0), dtype=float), np.concatenate([v, ve])
 
     cols_x = [law(e, np.zeros(nu)) for e in np.eye(nx)]
     cols_u = [law(np.zeros(nx), e) for e in np.eye(nu)]
@@ -65,7 +66,7 @@ def observer_matrices(ref) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarr
 
 class LinearObserver(Diagram):
     """The linear observer ``reference`` (a Python DiscreteObserver, kept as the specification)
-    run as a Drake ``LinearSystem`` at its period: ports ``q`` (n), ``x_d`` (3n) -> ``v``,
+    run as a Drake ``LinearSystem`` (and a ``ZeroOrderHold`` for ``v_sampled``) at its period: ports ``q`` (n), ``x_d`` (3n) -> ``v``,
     ``v_error`` (n each), ``v_sampled`` (2n, the estimate of the last tick, held)."""
 
     def __init__(self, reference):
@@ -81,10 +82,14 @@ class LinearObserver(Diagram):
         b.Connect(mux.get_output_port(0), self.linear.get_input_port(0))
         b.ExportInput(mux.get_input_port(0), "q")
         b.ExportInput(mux.get_input_port(1), "x_d")
-        demux = b.AddSystem(Demultiplexer([n, n, 2 * n]))
+        demux = b.AddSystem(Demultiplexer([n, n]))
         b.Connect(self.linear.get_output_port(0), demux.get_input_port(0))
-        for i, name in enumerate(("v", "v_error", "v_sampled")):
-            b.ExportOutput(demux.get_output_port(i), name)
+        b.ExportOutput(demux.get_output_port(0), "v")
+        b.ExportOutput(demux.get_output_port(1), "v_error")
+        self.hold = b.AddSystem(ZeroOrderHold(T, 2 * n))
+        self.hold.set_name("v_sampled_hold")
+        b.Connect(self.linear.get_output_port(0), self.hold.get_input_port(0))
+        b.ExportOutput(self.hold.get_output_port(0), "v_sampled")
         b.BuildInto(self)
         self.set_name(f"{reference.get_name() or type(reference).__name__}(LinearSystem)")
 
@@ -93,4 +98,11 @@ class LinearObserver(Diagram):
         qd_d0 = np.zeros(self.n) if qd_d0 is None else np.asarray(qd_d0, float)
         h0 = self.reference.initial_history(np.asarray(q0, float), np.asarray(q_d0, float), qd_d0)
         sub = self.GetMutableSubsystemContext(self.linear, context)
-        sub.get_mutable_discrete_state_vector().SetFromVector(np.concatenate([h0, np.zeros(2 * self.n)]))
+        sub.get_mutable_discrete_state_vector().SetFromVector(h0)
+        self.GetMutableSubsystemContext(self.hold, context).get_mutable_discrete_state_vector().SetZero()
+
+
+def compiled(observer, python: bool = False):
+    """The registry factories' choice: ``observer`` itself (``python=True``, the Python reference)
+    or :class:`LinearObserver` around it (the default)."""
+    return observer if python else LinearObserver(observer)

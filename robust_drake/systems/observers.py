@@ -186,12 +186,9 @@ def make_averaging(ctx, n_avg: int = 3, python: bool = False):
     """Registry factory ``averaging`` (JS eqs. 64/66): run by Drake's C++ LinearSystem
     (:class:`~robust_drake.systems.linear_observer.LinearObserver`, tested equal to this module's
     Python block); ``python=True`` gives the Python :class:`AveragingVelocityObserver` itself."""
-    obs = AveragingVelocityObserver(ctx.n, ctx.period, n_avg)
-    if python:
-        return obs
-    from robust_drake.systems.linear_observer import LinearObserver
+    from robust_drake.systems.linear_observer import compiled
 
-    return LinearObserver(obs)
+    return compiled(AveragingVelocityObserver(ctx.n, ctx.period, n_avg), python)
 
 
 def make_exact(ctx):
