@@ -195,6 +195,8 @@ def test_per_tick_update_equals_spong_law(name):
                   scalar_fast_path=True)
     else:
         c = make_block("controller", name, _ctx(), {})
+        if name in ("sp1", "sp2"):  # the closed loop's block: four ports gathered by a C++ Multiplexer
+            assert isinstance(c, spong.FusedInputController) and c.law.num_input_ports() == 5
     assert c.scalar_fast_path
     rng = np.random.default_rng(4)
     ctx = c.CreateDefaultContext()
