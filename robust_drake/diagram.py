@@ -381,11 +381,12 @@ class ClosedLoop:
     reference, optional flexibility, encoder, observer, controller, command chain (fixed friction
     compensation, saturation), plant-side forces (``systems.forces``), loggers.
 
-    The reference source, the encoder and the plant friction are the C++ blocks (``SymbolicVectorSystem``) of
-    :mod:`robust_drake.systems.sampled_reference`, :mod:`robust_drake.systems.sensors` and
-    :mod:`robust_drake.systems.friction`, tested equal to their Python references (at the ticks for
-    the reference); a subclass may set ``reference_block`` / ``encoder_block`` / ``friction_block`` to other
-    classes with the same signature and ports (benchmarks/bench_closed_loop.py runs the Python ones)."""
+    The reference source, the encoder and the plant friction are C++ blocks
+    (:mod:`robust_drake.systems.sampled_reference`, :mod:`robust_drake.systems.sensors`,
+    :mod:`robust_drake.systems.friction`), tested equal to their Python references (the reference at
+    the ticks); a subclass may set ``reference_block`` / ``encoder_block`` / ``friction_block`` to
+    other classes with the same signature and ports (benchmarks/bench_closed_loop.py runs the Python
+    ones).  BUILD_NOTES "Speed of the 2500 Hz loop"."""
 
     reference_block = SampledReference  # (reference, period): -> x_d, with tabulate(duration)
     encoder_block = CompiledQuantizingEncoder  # (n, theta_m): state -> q
@@ -538,7 +539,7 @@ class ClosedLoop:
     def _add_logs(self, x_d, u, tau, obs):
         """One logger at the sample rate on a Multiplexer of the plant state, x_d, u, tau (and the
         observer's ``v_sampled``): one publish per tick instead of one per signal (BUILD_NOTES
-        "Performance"); :meth:`_log_columns` splits its columns by signal."""
+        "Speed of the 2500 Hz loop"); :meth:`_log_columns` splits its columns by signal."""
         builder = self.builder
         ports = {"state": self.plant.get_state_output_port(), "x_d": x_d, "u": u, "tau": tau}
         if obs.HasOutputPort("v_sampled"):

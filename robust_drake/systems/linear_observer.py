@@ -18,7 +18,7 @@ T inside a small Diagram whose ports are those of the Python block (inputs ``q``
 ``v``, ``v_error``, ``v_sampled``), so it drops into the closed loop under the same name and can be
 replaced like any observer.  Same sample timing as the Python block: the outputs use this tick's
 input and the stored history; the periodic update (offset 0) pushes the sample.
-Cost per 2500 Hz tick: see BUILD_NOTES "Performance".
+Cost per 2500 Hz tick: see BUILD_NOTES "Speed of the 2500 Hz loop".
 """
 
 from __future__ import annotations
@@ -66,7 +66,8 @@ def observer_matrices(ref) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarr
 
 class LinearObserver(Diagram):
     """The linear observer ``reference`` (a Python DiscreteObserver, kept as the specification)
-    run as a Drake ``LinearSystem`` (and a ``ZeroOrderHold`` for ``v_sampled``) at its period: ports ``q`` (n), ``x_d`` (3n) -> ``v``,
+    run as a Drake ``LinearSystem`` (and a ``ZeroOrderHold`` for ``v_sampled``) at its period:
+    ports ``q`` (n), ``x_d`` (3n) -> ``v``,
     ``v_error`` (n each), ``v_sampled`` (2n, the estimate of the last tick, held)."""
 
     def __init__(self, reference):

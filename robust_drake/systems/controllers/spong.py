@@ -247,9 +247,9 @@ class FusedInputController(Diagram):
     """The controller block of a scalar-path SP1/SP2 controller ``law``: ports ``x_d``, ``q``, ``v``,
     ``v_error`` -> ``u`` as the contract says, gathered inside by one C++ Multiplexer into the law's
     ``inputs`` port, so the per-tick Python update reads one port instead of four (about 3 us per
-    2500 Hz tick, BUILD_NOTES "Performance"); same torque (tests/test_compiled_blocks.py).  The law's
-    attributes (``rho``, ``theta0``, ``uncertainty``, ``compute``, ``add_feedforward``, ...) are
-    read through this block; ``law`` is the LeafSystem itself."""
+    2500 Hz tick, BUILD_NOTES "Speed of the 2500 Hz loop"); same torque
+    (tests/test_compiled_blocks.py).  The law's attributes (``rho``, ``theta0``, ``uncertainty``,
+    ``compute``, ``add_feedforward``, ...) are read through this block; ``law`` is the LeafSystem."""
 
     def __init__(self, law):
         super().__init__()
