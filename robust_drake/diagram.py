@@ -388,7 +388,7 @@ class ClosedLoop:
     other classes with the same signature and ports (benchmarks/bench_closed_loop.py runs the Python
     ones).  BUILD_NOTES "Speed of the 2500 Hz loop"."""
 
-    reference_block = SampledReference  # (reference, period): -> x_d, with tabulate(duration)
+    reference_block = SampledReference  # (reference, period, duration): -> x_d, with tabulate(duration)
     encoder_block = CompiledQuantizingEncoder  # (n, theta_m): state -> q
     friction_block = CompiledCoulombViscousFriction  # (n, coulomb, viscous): state -> generalized_force
 
@@ -434,7 +434,8 @@ class ClosedLoop:
         check_run_size(c.duration or self.reference.duration, c.rate)
         if self.reference.n != self.n:
             raise RobustDrakeError(f"trajectory {c.trajectory!r} has {self.reference.n} joints, robot has {self.n}")
-        src = builder.AddSystem(self.reference_block(self.reference, self.period))
+        horizon = c.duration or self.reference.duration  # re-tabulated by simulate() for another duration
+        src = builder.AddSystem(self.reference_block(self.reference, self.period, horizon))
         self.reference_source = src
         src.set_name("reference")
         return src.get_output_port(0)

@@ -6,8 +6,10 @@ returns its table row k.  :class:`SampledReference` returns the same rows from a
 ``TrajectorySource`` over a zero-order-hold ``PiecewisePolynomial`` whose breaks sit half a period
 before each tick, so the value at t_k is row k exactly (tested equal to the Python block) and the
 output costs no Python callback per tick.  Between ticks it holds the nearest tick's row (the Python
-block computes the exact reference there); a reader of x_d between ticks (a continuous-time custom
-block) should use ``ReferenceTrajectory``.  Port: output ``x_d`` (3n).
+block computes the exact reference there), and beyond the tabulated horizon it holds the last row
+(:meth:`SampledReference.tabulate` sets the horizon; ``ClosedLoop.simulate`` calls it with the run's
+duration).  A reader of x_d between ticks (a continuous-time custom block) should use
+``ReferenceTrajectory`` (``ClosedLoop.reference_block``).  Port: output ``x_d`` (3n).
 """
 
 from __future__ import annotations
