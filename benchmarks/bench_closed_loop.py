@@ -14,7 +14,8 @@ Part 1, the 2-link D2R2 SP1 loop at 2500 Hz (one RK2 step per tick), built up on
     + loggers                               = the full loop of ``build_closed_loop``
 
 each row in us per tick, x plant alone, and the increment over the row above; then the full loop
-with the Python reference blocks (encoder, friction, estimator as Python LeafSystems) for comparison.
+with the Python reference blocks (reference, encoder, friction, estimator as the Python LeafSystems
+they replace; the controller as above) for comparison.
 
 Part 2, a 7-axis SP1 loop at 1 kHz (the Panda with Gaz et al.'s sigmoid friction, a 20-bit encoder
 and Franka's torque limits, as tests/test_anyarm_controllers.py; three RK2 steps per tick): plant alone
