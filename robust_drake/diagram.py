@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING, Any, Callable
 import numpy as np
 from pydrake.systems.analysis import ResetIntegratorFromFlags, Simulator
 from pydrake.systems.framework import DiagramBuilder
-from pydrake.systems.primitives import ConstantVectorSource, LogVectorOutput, Saturation
+from pydrake.systems.primitives import LogVectorOutput, Multiplexer, Saturation
 
 from robust_drake.description import describe
 from robust_drake.divergence import STATE_LIMIT, TRACKING_ERROR_LIMIT, is_diverged
@@ -42,9 +42,10 @@ from robust_drake.metrics import error_criteria, torque_statistics
 from robust_drake.models import ArmSpec, ROBOTS, add_arm, get_arm, set_d2r2_theta
 from robust_drake.registry import BuildContext, block_label, is_block_spec, make_block
 from robust_drake.systems.forces import add_force_blocks, sum_into_plant
-from robust_drake.systems.friction import CoulombViscousFriction, FixedFrictionCompensation
-from robust_drake.systems.sensors import QuantizingEncoder, quantize
-from robust_drake.trajectories import ReferenceTrajectory, make_reference
+from robust_drake.systems.friction import CompiledCoulombViscousFriction, FixedFrictionCompensation
+from robust_drake.systems.sensors import CompiledQuantizingEncoder, quantize
+from robust_drake.systems.sampled_reference import SampledReference
+from robust_drake.trajectories import make_reference
 
 if TYPE_CHECKING:  # pragma: no cover
     import pandas as pd
@@ -378,7 +379,18 @@ class ClosedLoop:
 
     Built in the order of the signal flow (module docstring): plant (``models.add_arm``),
     reference, optional flexibility, encoder, observer, controller, command chain (fixed friction
-    compensation, saturation), plant-side forces (``systems.forces``), loggers."""
+    compensation, saturation), plant-side forces (``systems.forces``), loggers.
+
+    The reference source, the encoder and the plant friction are C++ blocks
+    (:mod:`robust_drake.systems.sampled_reference`, :mod:`robust_drake.systems.sensors`,
+    :mod:`robust_drake.systems.friction`), tested equal to their Python references (the reference at
+    the ticks); a subclass may set ``reference_block`` / ``encoder_block`` / ``friction_block`` to
+    other classes with the same signature and ports (benchmarks/bench_closed_loop.py runs the Python
+    ones).  BUILD_NOTES "Speed of the 2500 Hz loop"."""
+
+    reference_block = SampledReference  # (reference, period, duration): -> x_d, with tabulate(duration)
+    encoder_block = CompiledQuantizingEncoder  # (n, theta_m): state -> q
+    friction_block = CompiledCoulombViscousFriction  # (n, coulomb, viscous): state -> generalized_force
 
     def __init__(self, config: ClosedLoopConfig):
         self.config = config.resolved()
@@ -405,9 +417,8 @@ class ClosedLoop:
         u = self._add_controller(x_d, q_meas, obs)
         tau = self._add_command_chain(u, obs)
         self._add_plant_forces(tau)
-        if self.plant.num_actuators() > 0:
-            zero = builder.AddSystem(ConstantVectorSource(np.zeros(self.plant.num_actuators())))
-            builder.Connect(zero.get_output_port(0), self.plant.get_actuation_input_port())
+        # the actuation input stays unconnected: MultibodyPlant reads it as zero (torque enters through
+        # applied_generalized_force, see BUILD_NOTES "Simulation scheme"); a zero source cost ~0.5 us per tick
         self._add_logs(x_d, u, tau, obs)
         self.diagram = None
 
@@ -423,7 +434,8 @@ class ClosedLoop:
         check_run_size(c.duration or self.reference.duration, c.rate)
         if self.reference.n != self.n:
             raise RobustDrakeError(f"trajectory {c.trajectory!r} has {self.reference.n} joints, robot has {self.n}")
-        src = builder.AddSystem(ReferenceTrajectory(self.reference, self.period))
+        horizon = c.duration or self.reference.duration  # re-tabulated by simulate() for another duration
+        src = builder.AddSystem(self.reference_block(self.reference, self.period, horizon))
         self.reference_source = src
         src.set_name("reference")
         return src.get_output_port(0)
@@ -431,7 +443,7 @@ class ClosedLoop:
     def _add_encoder(self):
         """The quantising encoder on the plant (or the flexible drive's encoder side)."""
         builder, plant = self.builder, self.plant
-        enc = builder.AddSystem(QuantizingEncoder(self.n, self.config.encoder_resolution))
+        enc = builder.AddSystem(self.encoder_block(self.n, self.config.encoder_resolution))
         enc.set_name("encoder")
         builder.Connect(plant.get_state_output_port() if self.flexibility is None
                         else self.flexibility.encoder_state, enc.get_input_port(0))
@@ -511,7 +523,7 @@ class ClosedLoop:
         forces = [tau] if self.flexibility is None else self.flexibility.forces(builder, tau)
         self.effect_blocks = []
         if c.plant_friction is not None:
-            fr = CoulombViscousFriction(n, c.plant_friction["coulomb"], c.plant_friction["viscous"])
+            fr = self.friction_block(n, c.plant_friction["coulomb"], c.plant_friction["viscous"])
             fr.set_name("plant_friction")
             self.effect_blocks.append(fr)
         for i, eff in enumerate(c.effects):
@@ -526,17 +538,29 @@ class ClosedLoop:
         sum_into_plant(builder, plant, forces)
 
     def _add_logs(self, x_d, u, tau, obs):
-        """Loggers at the sample rate."""
-        T, builder = self.period, self.builder
-        self._logs = {
-            "state": LogVectorOutput(self.plant.get_state_output_port(), builder, T),
-            "x_d": LogVectorOutput(x_d, builder, T),
-            "u": LogVectorOutput(u, builder, T),
-            "tau": LogVectorOutput(tau, builder, T),
-        }
+        """One logger at the sample rate on a Multiplexer of the plant state, x_d, u, tau (and the
+        observer's ``v_sampled``): one publish per tick instead of one per signal (BUILD_NOTES
+        "Speed of the 2500 Hz loop"); :meth:`_log_columns` splits its columns by signal."""
+        builder = self.builder
+        ports = {"state": self.plant.get_state_output_port(), "x_d": x_d, "u": u, "tau": tau}
         if obs.HasOutputPort("v_sampled"):
-            self._logs["v_hat"] = LogVectorOutput(obs.GetOutputPort("v_sampled"), builder, T)
+            ports["v_hat"] = obs.GetOutputPort("v_sampled")
+        sizes = [p.size() for p in ports.values()]
+        mux = builder.AddSystem(Multiplexer(sizes))
+        mux.set_name("logged_signals")
+        for i, p in enumerate(ports.values()):
+            builder.Connect(p, mux.get_input_port(i))
+        self._log = LogVectorOutput(mux.get_output_port(0), builder, self.period)
+        self._log.set_name("logger")
+        ends = np.cumsum([0] + sizes)
+        self._log_slices = {k: slice(int(a), int(b)) for k, a, b in zip(ports, ends[:-1], ends[1:])}
         self.extra_logs = {}
+
+    def _log_columns(self, context) -> tuple[np.ndarray, dict]:
+        """(sample times, {signal: (K, size) array}) of the logger of :meth:`_add_logs`."""
+        log = self._log.FindLog(context)
+        data = log.data().T
+        return log.sample_times(), {k: data[:, sl] for k, sl in self._log_slices.items()}
 
     def add_log(self, name: str, port) -> None:
         """Log another output port at the sample rate (before the first run)."""
@@ -597,10 +621,9 @@ class ClosedLoop:
             integrator_error = text[0] if text else type(exc).__name__
         wall = time.perf_counter() - wall0
 
-        logs = {k: v.FindLog(context) for k, v in self._logs.items()}
-        t = logs["state"].sample_times()
-        X = logs["state"].data().T
-        XD = logs["x_d"].data().T
+        t, logs = self._log_columns(context)
+        X = logs["state"]
+        XD = logs["x_d"]
         q, v = X[:, :n], X[:, n:]
         diverged, reason = is_diverged(t, q, v, XD[:, :n], error_limit=c.divergence_error)
         if integrator_error is not None:
@@ -613,12 +636,12 @@ class ClosedLoop:
             metrics = {k: float("nan") for k in ("error1", "maxerr1", "error2", "maxerr2", "error_task", "maxerr_task")}
         else:
             metrics = error_criteria(t, q, XD[:, :n], link_lengths, skip=c.metrics_skip, dt=c.metrics_dt)
-        tau = logs["tau"].data().T
+        tau = logs["tau"]
         res = SimulationResult(
             t=t, q=q, v=v, q_d=XD[:, :n], qd_d=XD[:, n:2 * n], qdd_d=XD[:, 2 * n:],
             q_meas=q if c.encoder_resolution is None else quantize(q, c.encoder_resolution),
-            v_hat=logs["v_hat"].data().T[:, :n] if "v_hat" in logs else None,
-            u=logs["u"].data().T, tau=tau, metrics=metrics,
+            v_hat=logs["v_hat"][:, :n] if "v_hat" in logs else None,
+            u=logs["u"], tau=tau, metrics=metrics,
             torque_stats=torque_statistics(t, tau) if len(t) > 1 else {},
             sim_seconds=float(t[-1]) if len(t) else 0.0, wall_seconds=wall, diverged=diverged,
             config=c.to_dict(), link_lengths=link_lengths, divergence_reason=reason,

@@ -193,6 +193,7 @@ def estimator_quality(v_hat, v_true, a_true, T, skip=0):
 # ---------------------------------------------------------------------------------------------
 # LeafSystems on the observer port convention (q, x_d -> v, v_error)
 # ---------------------------------------------------------------------------------------------
+from robust_drake.systems.linear_observer import compiled  # noqa: E402
 from robust_drake.systems.observers import DiscreteObserver  # noqa: E402
 
 
@@ -272,17 +273,19 @@ class Averaging65Observer(_FiniteDifferenceObserver):
                          window=int(window))
 
 
-def make_averaging65(ctx, window=3):
-    return Averaging65Observer(ctx.n, ctx.period, window=window)
+# Registry factories: the law runs as a Drake LinearSystem (systems.linear_observer, tested equal
+# to the Python block); ``python=True`` gives the Python block itself.
+def make_averaging65(ctx, window=3, python=False):
+    return compiled(Averaging65Observer(ctx.n, ctx.period, window=window), python)
 
 
-def make_euler(ctx):
-    return EulerVelocityObserver(ctx.n, ctx.period)
+def make_euler(ctx, python=False):
+    return compiled(EulerVelocityObserver(ctx.n, ctx.period), python)
 
 
-def make_filtered(ctx, nu=0.5, normalize=True):
-    return FilteredDerivativeObserver(ctx.n, ctx.period, nu=nu, normalize=normalize)
+def make_filtered(ctx, nu=0.5, normalize=True, python=False):
+    return compiled(FilteredDerivativeObserver(ctx.n, ctx.period, nu=nu, normalize=normalize), python)
 
 
-def make_averaging67(ctx, window=3):
-    return Averaging67Observer(ctx.n, ctx.period, window=window)
+def make_averaging67(ctx, window=3, python=False):
+    return compiled(Averaging67Observer(ctx.n, ctx.period, window=window), python)

@@ -19,7 +19,10 @@ import math
 import numpy as np
 from pydrake.systems.framework import LeafSystem
 
+from pydrake.symbolic import MakeVectorVariable
+
 from robust_drake.errors import RobustDrakeError
+from robust_drake.systems.compiled import SymbolicBlock
 
 # Plant friction of the simulated D2R2 (our choice; JS section 7 says only that k2 is about
 # twice k1, that the compensation k_hat = (1, 2) N m captures most of it, and that the
@@ -87,6 +90,29 @@ class CoulombViscousFriction(LeafSystem):
         for i in range(n):
             w = x[n + i]
             out[i] = -(self._b[i] * w + (math.copysign(self._c[i], w) if w != 0.0 else 0.0))
+
+
+class CompiledCoulombViscousFriction(SymbolicBlock):
+    """:class:`CoulombViscousFriction` evaluated by Drake in C++ (a ``SymbolicVectorSystem``, see
+    :mod:`robust_drake.systems.compiled`): same ports (``state`` -> ``generalized_force``), same
+    parameters and law, tested equal to the Python block; the closed loop's plant friction.  The
+    sharp sign is ``if_then_else`` (sgn 0 = 0, as the Python block), the smooth one tanh."""
+
+    def __init__(self, n: int, coulomb, viscous, v_eps: float | None = None, *, nonnegative: bool = True):
+        from pydrake.symbolic import Expression, if_then_else, tanh
+
+        ref = CoulombViscousFriction(n, coulomb, viscous, v_eps, nonnegative=nonnegative)  # checks the inputs
+        self.n, self.coulomb, self.viscous, self.v_eps = ref.n, ref.coulomb, ref.viscous, ref.v_eps
+        x = MakeVectorVariable(2 * self.n, "x")
+        out = []
+        for i in range(self.n):
+            w, c, b = x[self.n + i], float(self.coulomb[i]), float(self.viscous[i])
+            if self.v_eps is None:
+                s = if_then_else(w > 0.0, Expression(c), if_then_else(w < 0.0, Expression(-c), Expression(0.0)))
+            else:
+                s = c * tanh(w / self.v_eps)
+            out.append(-(b * w + s))
+        super().__init__(x, out, "state", "generalized_force", "CoulombViscousFriction(C++)")
 
 
 class FixedFrictionCompensation(LeafSystem):

@@ -173,9 +173,12 @@ class KalmanVelocityObserver(DiscreteObserver):
         return h
 
 
-def make_kalman(ctx, c=1000.0, theta_m=None):
+def make_kalman(ctx, c=1000.0, theta_m=None, python=False):
     """Registry factory ``kalman``; ``theta_m`` defaults to the loop's encoder resolution
-    (the D2R2 interpulse angle when the encoder is exact)."""
+    (the D2R2 interpulse angle when the encoder is exact).  A linear filter: run as a Drake
+    LinearSystem (:mod:`robust_drake.systems.linear_observer`) unless ``python=True``."""
+    from robust_drake.systems.linear_observer import compiled
+
     if theta_m is None:
         theta_m = getattr(ctx.config, "encoder_resolution", None) or THETA_M
-    return KalmanVelocityObserver(ctx.n, ctx.period, c=c, theta_m=theta_m)
+    return compiled(KalmanVelocityObserver(ctx.n, ctx.period, c=c, theta_m=theta_m), python)

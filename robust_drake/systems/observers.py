@@ -35,6 +35,7 @@ class DiscreteObserver(LeafSystem):
             raise RobustDrakeError(f"observer sample period must be positive, got {period}")
         self.n = int(n)
         self.period = float(period)
+        self.history_size = int(history_size)
         if name:
             self.set_name(name)
         self._q_port = self.DeclareVectorInputPort("q", self.n)
@@ -181,8 +182,13 @@ class ExactVelocityObserver(LeafSystem):
         pass
 
 
-def make_averaging(ctx, n_avg: int = 3):
-    return AveragingVelocityObserver(ctx.n, ctx.period, n_avg)
+def make_averaging(ctx, n_avg: int = 3, python: bool = False):
+    """Registry factory ``averaging`` (JS eqs. 64/66): run by Drake's C++ LinearSystem
+    (:class:`~robust_drake.systems.linear_observer.LinearObserver`, tested equal to this module's
+    Python block); ``python=True`` gives the Python :class:`AveragingVelocityObserver` itself."""
+    from robust_drake.systems.linear_observer import compiled
+
+    return compiled(AveragingVelocityObserver(ctx.n, ctx.period, n_avg), python)
 
 
 def make_exact(ctx):

@@ -13,6 +13,7 @@ import numpy as np
 from pydrake.systems.framework import LeafSystem
 
 from robust_drake.errors import RobustDrakeError
+from robust_drake.systems.compiled import SymbolicBlock
 
 D2R2_COUNTS_PER_REV = 655360
 D2R2_THETA_M = 2.0 * math.pi / D2R2_COUNTS_PER_REV  # 9.5874e-6 rad, JS eq. 70
@@ -44,3 +45,20 @@ class QuantizingEncoder(LeafSystem):
             output.get_mutable_value()[:] = q
         else:
             output.get_mutable_value()[:] = self.theta_m * np.floor(q / self.theta_m)
+
+
+class CompiledQuantizingEncoder(SymbolicBlock):
+    """:class:`QuantizingEncoder` evaluated by Drake in C++ (a ``SymbolicVectorSystem``, see
+    :mod:`robust_drake.systems.compiled`): input ``state`` (2n), output ``q`` (n) =
+    theta_m floor(q / theta_m) (q itself for ``theta_m`` None); tested equal to the Python block."""
+
+    def __init__(self, n: int, theta_m: float | None = D2R2_THETA_M):
+        from pydrake.symbolic import MakeVectorVariable, floor
+
+        if theta_m is not None and not theta_m > 0:
+            raise RobustDrakeError(f"encoder resolution must be positive (got {theta_m})")
+        self.n, self.theta_m = int(n), theta_m
+        x = MakeVectorVariable(2 * self.n, "x")
+        q = [x[i] for i in range(self.n)]
+        out = q if theta_m is None else [float(theta_m) * floor(qi / float(theta_m)) for qi in q]
+        super().__init__(x, out, "state", "q", "QuantizingEncoder(C++)")

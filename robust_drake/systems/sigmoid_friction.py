@@ -9,10 +9,13 @@ The plant-side block applies -tau_f (friction opposes motion) on ``generalized_f
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from pydrake.systems.framework import LeafSystem
 
 from robust_drake.errors import RobustDrakeError
+from robust_drake.systems.compiled import SymbolicBlock
 
 #: Gaz et al. 2019, Panda joints 1-7 (also in the authors' published dynamic model code).
 PANDA_PHI1 = (0.54615, 0.87224, 0.64068, 1.2794, 0.83904, 0.30301, 0.56489)
@@ -43,10 +46,28 @@ class SigmoidFriction(LeafSystem):
         out.SetFromVector(-sigmoid_friction(qd, *self.phi))
 
 
-def make_sigmoid_friction(ctx, phi1=None, phi2=None, phi3=None):
-    """Registry factory ``sigmoid_friction``: the Panda values of Gaz et al. unless given."""
+class CompiledSigmoidFriction(SymbolicBlock):
+    """:class:`SigmoidFriction` evaluated by Drake in C++ (a ``SymbolicVectorSystem``, see
+    :mod:`robust_drake.systems.compiled`): same ports and law, tested equal to the Python block."""
+
+    def __init__(self, n, phi1, phi2, phi3):
+        from pydrake.symbolic import MakeVectorVariable, exp
+
+        ref = SigmoidFriction(n, phi1, phi2, phi3)  # checks the parameters
+        self.n, self.phi = ref.n, ref.phi
+        x = MakeVectorVariable(2 * self.n, "x")
+        out = []
+        for i in range(self.n):
+            p1, p2, p3 = (float(p[i]) for p in self.phi)
+            out.append(-(p1 / (1.0 + exp(-p2 * (x[self.n + i] + p3))) - p1 / (1.0 + math.exp(-p2 * p3))))
+        super().__init__(x, out, "state", "generalized_force", "SigmoidFriction(C++)")
+
+
+def make_sigmoid_friction(ctx, phi1=None, phi2=None, phi3=None, python=False):
+    """Registry factory ``sigmoid_friction``: the Panda values of Gaz et al. unless given; run in
+    C++ (:class:`CompiledSigmoidFriction`) unless ``python=True``."""
     if phi1 is None and phi2 is None and phi3 is None:
         if ctx.n != 7:
             raise RobustDrakeError("sigmoid_friction has the Panda's (7-joint) values built in; give phi1, phi2, phi3")
         phi1, phi2, phi3 = PANDA_PHI1, PANDA_PHI2, PANDA_PHI3
-    return SigmoidFriction(ctx.n, phi1, phi2, phi3)
+    return (SigmoidFriction if python else CompiledSigmoidFriction)(ctx.n, phi1, phi2, phi3)

@@ -1,0 +1,36 @@
+"""Stateless laws y = f(u) evaluated by Drake in C++ (``SymbolicVectorSystem``) behind named ports.
+
+A Python output port costs a few microseconds per evaluation, and a plant-side force block is
+evaluated at every integrator stage (BUILD_NOTES "Speed of the 2500 Hz loop").  Drake's ``SymbolicVectorSystem``
+evaluates an expression tree in C++, but a stateless one aborts inside a diagram with continuous
+state (``DoCalcTimeDerivatives(): condition 'dynamics_.size() > 0' failed``, pydrake 1.51): the
+block here carries one dummy continuous state z with z' = 0, which the law does not read.
+
+:class:`SymbolicBlock` is a small Diagram exporting that system's ports under the names a
+LeafSystem of the project would have (e.g. ``state`` -> ``generalized_force``), so it is wired,
+named and replaced like any other block.  The Python reference of every law built this way is
+kept beside it and tested equal (tests/test_compiled_blocks.py).
+"""
+
+from __future__ import annotations
+
+from pydrake.symbolic import Variable
+from pydrake.systems.framework import Diagram, DiagramBuilder
+from pydrake.systems.primitives import SymbolicVectorSystem
+
+
+class SymbolicBlock(Diagram):
+    """``output = exprs(input)`` in C++: one input port ``input_name`` (the variables ``u``, a
+    sequence of pydrake symbolic Variables) and one output port ``output_name`` (``exprs``)."""
+
+    def __init__(self, u, exprs, input_name: str, output_name: str, name: str):
+        super().__init__()
+        z = Variable("dummy_state")
+        b = DiagramBuilder()
+        self.symbolic = b.AddSystem(SymbolicVectorSystem(state=[z], input=list(u), dynamics=[0.0 * z],
+                                                         output=list(exprs)))
+        self.symbolic.set_name(f"{name}_expressions")
+        b.ExportInput(self.symbolic.get_input_port(0), input_name)
+        b.ExportOutput(self.symbolic.get_output_port(0), output_name)
+        b.BuildInto(self)
+        self.set_name(name)
