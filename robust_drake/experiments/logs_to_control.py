@@ -93,7 +93,7 @@ def identify(cfg: LogsToControlConfig, out_dir: str):
     return IdentifiedModel.from_report(rep, "baseline")
 
 
-def _mass_extremes(robot, setup, q_grid):
+def mass_extremes(robot, setup, q_grid):
     """Extreme eigenvalues of M(q) [kg m^2] over q_grid of the plant modified by ``setup``."""
     from robust_drake.models import make_plant
 
@@ -160,7 +160,7 @@ def run_logs_to_control(cfg: LogsToControlConfig | None = None, out_dir: str | N
     for d in plants:
         loop, res = _closed_loop(cfg, "calafiore", {"ellipsoid": ell}, d.setup)
         c = loop.controller
-        m_min, m_max = _mass_extremes(cfg.robot, d.setup, q_grid)
+        m_min, m_max = mass_extremes(cfg.robot, d.setup, q_grid)
         bound = ultimate_error_bound(c.K, c.Lambda, c.epsilon, m_min, m_max)
         err = float(np.max(np.abs(res.q - res.q_d)[res.t >= cfg.transient]))
         draws.append({"kind": d.kind, "radius": mahalanobis_radius(theta0, P, d.theta),
