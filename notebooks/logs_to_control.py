@@ -14,7 +14,7 @@
 # # From logs to a guaranteed controller
 #
 # 1. A simulated identification experiment on an arm with a known truth (the Siciliano vertical
-#    2-link arm): 3 s of a PD-tracked Fourier excitation, torque noise of 1 % of the largest
+#    2-link arm): 5 s of a PD-tracked Fourier excitation, torque noise of 2 % of the largest
 #    gravity torque.
 # 2. The repair pipeline identifies the base parameters with their covariance (an `IdentifiedModel`).
 # 3. Its 99 % confidence ellipsoid E(P, theta0) (Calafiore & Indri eq. 10) is the uncertainty set.

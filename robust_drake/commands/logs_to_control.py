@@ -23,13 +23,14 @@ def register(sub):
                     "from it, and run plants drawn across the set (half on its boundary, inertias changed, each a "
                     "physically valid arm) against the ultimate tracking-error bound of the theory.")
     p.add_argument("--robot", default=ROBOTS[0], choices=ROBOTS, help=f"2-link arm (default {ROBOTS[0]})")
-    p.add_argument("--noise-fraction", type=float, default=0.01,
-                   help="torque noise std of the experiment / largest gravity torque of the arm (default 0.01)")
+    p.add_argument("--noise-fraction", type=float, default=0.02,
+                   help="torque noise std of the experiment / largest gravity torque of the arm (default 0.02)")
     p.add_argument("--boundary-share", type=float, default=0.5,
                    help="share of the draws on the boundary of the set, the rest uniform inside (default 0.5)")
     p.add_argument("--alpha", type=float, default=0.01, help="1 - confidence level of the set (default 0.01)")
     p.add_argument("--draws", type=int, default=8, help="Monte Carlo plants inside the set (default 8)")
-    p.add_argument("--duration", type=float, default=3.0, help="identification experiment [s] (default 3)")
+    p.add_argument("--duration", type=float, default=5.0,
+                   help="identification experiment [s] (default 5; shorter logs gave sets that missed the truth)")
     p.add_argument("--track-duration", type=float, default=2.0, help="closed-loop run per draw [s] (default 2)")
     p.add_argument("--transient", type=float, default=1.0,
                    help="the bound is checked after this time [s] (default 1)")
@@ -45,8 +46,9 @@ def run(args) -> int:
         raise RobustDrakeError(f"--alpha must lie in (0, 1) (got {args.alpha})")
     if args.draws < 1:
         raise RobustDrakeError(f"--draws must be at least 1 (got {args.draws})")
-    if not args.duration >= 2.0:
-        raise RobustDrakeError(f"--duration must be at least 2 s (got {args.duration})")
+    if not args.duration >= 5.0:
+        raise RobustDrakeError(f"--duration must be at least 5 s (got {args.duration}): with shorter logs the 99 % "
+                               "set held the truth in only 17-18 of 20 experiments")
     if not (0.0 < args.noise_fraction < 1.0 and 0.0 <= args.boundary_share <= 1.0):
         raise RobustDrakeError("--noise-fraction must lie in (0, 1) and --boundary-share in [0, 1]")
     if not 0.0 <= args.transient < args.track_duration:

@@ -1,21 +1,23 @@
 """From logs to a guaranteed controller, on a simulated arm with a known truth.
 
 1. A "true" 2-link arm (URDF, Coulomb + viscous friction; ``ROBOTS``) runs a PD-tracked Fourier
-   excitation (``model_repair.simulated.simulate_experiment``) for a short time (default 3 s at
-   250 Hz, 470 rows after the filter's edges) with torque noise of ``noise_fraction`` (1 %) of the
+   excitation (``model_repair.simulated.simulate_experiment``) for a short time (default 5 s at
+   250 Hz, 843 rows after the filter's edges) with torque noise of ``noise_fraction`` (2 %) of the
    arm's largest gravity torque, so that the identified set is of a size worth a robust design
-   (tens of % on the inertias, against ~0.1 % with 8 s and 5 mN m on the C.1 before);
+   (C.1: draws up to 22 % off the truth in Izz, Siciliano: 9 %; against ~0.1 % in link masses
+   with 8 s and 5 mN m on the C.1 before);
    the excitation respects the robot's ``torque_limits`` (none on the Siciliano arm).
 2. ``run_repair`` (no effects; LS, or IV where its Hausman test flags errors in variables)
    identifies the base parameters: an :class:`~robust_drake.model_repair.model.IdentifiedModel`
    with covariance.
 3. :func:`robust_drake.uncertainty.confidence.confidence_ellipsoid` turns it into the 1 - alpha
    ellipsoid E(P, theta0) (CI eq. 10); the URDF's base parameters (the truth) must lie inside,
-   else the run stops with an error. Measured over seeds 0-19 (3 s logs): the 99 % set held the
-   truth in 18/20 experiments on the C.1 (largest radius 1.15) and 17/20 on the Siciliano arm
-   (largest 2.56): on such short filtered logs (N_eff ~ 30 per joint for 11 columns) the set is
-   not sound at its nominal level; a Newey-West covariance (16 lags) gave 18/20 on the Siciliano
-   arm, so the residual correlation alone does not explain it (measured, not fixed).
+   else the run stops with an error. Measured over seeds 0-19: with 5 s logs (the default) the
+   99 % set held the truth in 20/20 experiments on both arms (largest radius 1.00 on the C.1 and
+   0.85 on the Siciliano arm at 2 % noise); with 3 s logs only in 18/20 (C.1, radius up to 1.15)
+   and 17/20 (Siciliano, up to 2.56; a Newey-West covariance with 16 lags: 18/20; 10x less
+   noise: 18/20), so shorter logs (N_eff ~ 30 per joint for 11 columns) are refused by
+   ``--duration`` below 5 s (cause not found).
 4. CI eq. 15 (``calafiore`` controller) is built from (theta0, P).
 5. Monte Carlo over the whole set (``experiments.plant_draws``): half the draws on its boundary
    (||z|| = 1), half uniform inside, each realised as a physically valid plant (inertias changed,
@@ -59,8 +61,8 @@ ROBOTS = ("dfki_double_pendulum_c1", "siciliano_2link")
 @dataclass
 class LogsToControlConfig:
     robot: str = "dfki_double_pendulum_c1"
-    duration: float = 3.0  # identification experiment [s]
-    noise_fraction: float = 0.01  # torque noise std / largest gravity torque of the arm
+    duration: float = 5.0  # identification experiment [s]
+    noise_fraction: float = 0.02  # torque noise std / largest gravity torque of the arm
     alpha: float = 0.01  # 1 - alpha confidence
     draws: int = 8
     boundary_share: float = 0.5  # share of the draws on the set's boundary
