@@ -114,7 +114,7 @@ def iv_coverage():
 
 def test_iv_sandwich_set_covers_the_truth_without_knowing_the_noise_level(iv_coverage):
     """Same size and noise as above, no noise level given: the 90 % set of IV with an HC3 sandwich
-    X
-    covariance (solve_iv, what the repair's IV model carries) does not (measured 72 %)."""
+    holds the truth in >= 90 % - 3 sd of 300 experiments (measured 91 %); IV's homoscedastic
+    covariance (solve_iv, what the repair's IV model carries) does not (measured 77 %)."""
     assert iv_coverage["sandwich"] >= 1 - ALPHA - MARGIN, iv_coverage
     assert iv_coverage["solve_iv"] < 1 - ALPHA - 2 * MARGIN, iv_coverage
