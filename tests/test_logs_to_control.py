@@ -130,13 +130,15 @@ def test_chi2_set_is_smaller_than_the_lfr_sdp_set_on_the_same_samples():
     assert c["truth_radius_chi2"] <= 1.0 and c["truth_radius_sdp"] <= 1.0, c
 
 
-def test_cli_prints_the_loop_as_json_and_refuses_bad_options(capsys):
+def test_cli_prints_the_loop_as_json_and_refuses_bad_options(capsys, tmp_path):
     import json
 
     from robust_drake.cli import main
 
-    assert main(["logs-to-control", "--draws", "2", "--robot", "siciliano_2link", "--json"]) == 0
+    assert main(["logs-to-control", "--draws", "2", "--robot", "siciliano_2link", "--json",
+                 "--plot", str(tmp_path / "figs")]) == 0
     out = json.loads(capsys.readouterr().out)
+    assert (tmp_path / "figs" / "logs_to_control.png").stat().st_size > 5000
     assert out["uncertainty"]["kind"] == "ellipsoid" and out["rho"] > 0
     assert len(out["draws"]) == 2 and out["max_error"] <= out["bound"]
     for argv, msg in ((["--alpha", "0"], "--alpha"), (["--draws", "0"], "--draws"),

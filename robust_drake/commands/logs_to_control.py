@@ -35,7 +35,7 @@ def register(sub):
     p.add_argument("--transient", type=float, default=1.0,
                    help="the bound is checked after this time [s] (default 1)")
     p.add_argument("--seed", type=int, default=0, help="seed of the experiment and the draws (default 0)")
-    add_output_flags(p)
+    add_output_flags(p, plot="DIR", files="logs_to_control.png (error and bound per draw)")
     p.set_defaults(func=run)
 
 
@@ -56,7 +56,14 @@ def run(args) -> int:
     cfg = LogsToControlConfig(robot=args.robot, duration=args.duration, alpha=args.alpha, draws=args.draws,
                               track_duration=args.track_duration, transient=args.transient, seed=args.seed,
                               noise_fraction=args.noise_fraction, boundary_share=args.boundary_share)
+    from robust_drake.cli import plot_dir
+
+    plots = plot_dir(args)
     out = run_logs_to_control(cfg)
+    if plots is not None:
+        from robust_drake.experiments.logs_to_control import plot_logs_to_control
+
+        out["plot"] = plot_logs_to_control(out, plots / "logs_to_control.png")
     if args.json:
         print_json(out)
         return 0
@@ -68,4 +75,6 @@ def run(args) -> int:
             for i, d in enumerate(out["draws"])]
     print(format_table(rows, ["draw", "where", "radius", "bound [rad]", "max |e| [rad]", "within"]))
     print(f"PD (same K, Lambda) max |e| after the transient: {out['pd_max_error']:.4g} rad")
+    if plots is not None:
+        print(f"figure: {out['plot']}")
     return 0
