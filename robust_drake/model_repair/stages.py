@@ -545,7 +545,8 @@ def identified_models(inp: Inputs, base: Baseline, est: Estimator, sel: Selectio
             base_values=np.asarray(fitres.theta[:p0], float),
             base_covariance=None if cov is None else np.asarray(cov, float)[:p0, :p0],
             coulomb=np.asarray(fc, float), viscous=np.asarray(fv, float), effects=effs, estimator=method,
-            data={k: summary[k] for k in ("samples", "joints", "dt", "sources", "filter")})
+            data={**{k: summary[k] for k in ("samples", "joints", "dt", "sources", "filter")},
+                  "errors_in_variables": est.report.get("hausman")})  # read by uncertainty.confidence
 
     return (model(base.fit, [], [], "least_squares"), model(fin.fit, sel.chosen, fin.slices, est.method))
 

@@ -19,7 +19,9 @@ Any other URDF arm (serial7, siciliano_2link, ...): Y is the Drake-derived Sloti
 (:meth:`robust_drake.regressor.InverseDynamicsRegressor.slotine_li`, gravity included), theta_0 the
 URDF's base parameters, the uncertainty set a box |theta_i - theta0_i| <= rel_bound |theta0_i| +
 abs_bound (:func:`box_uncertainty`; SP1's rho = ||b||_2, SP2's rho_i = b_i), gains from
-:func:`default_gains` and boundary layers from :func:`default_epsilon`.  Which robots have a
+:func:`default_gains` and boundary layers from :func:`default_epsilon` (the smallest layer the sampled
+loop tolerates, :func:`sampled_epsilon`, with the predicted ultimate bound per joint,
+:func:`spong_ultimate_bound`, in ``uncertainty['epsilon_rule']``).  Which robots have a
 closed form is said by its description (``closed_form_regressor``, a key of
 :data:`CLOSED_FORM_SLOTINE_LI`).
 The controller systems are thin wrappers: ``compute`` is :func:`spong_law`.
@@ -419,19 +421,106 @@ def reference_regressor_norm(ctx, reg, samples: int = 200) -> float:
     return float(np.linalg.norm(Y, ord=2, axis=(1, 2)).max())
 
 
-def default_epsilon(rho, K, y_max):
-    """Boundary layer for arms without published values: inside the layer SP1's robust term is
-    the gain (rho/epsilon) Y Y^T on r; epsilon = rho y_max^2 / min(K) caps it at min(K) along the
-    reference (y_max = max ||Y||_2 there), so the sampled loop keeps the bandwidth K gives.
-    SP2 componentwise: epsilon_i = rho_i y_max^2 / min(K) (1 where rho_i = 0, u_i = 0 then)."""
-    kmin = float(np.min(K))
+#: JS eq. 18 boundary layer for arms without a published one: stability margin of the sampled
+#: loop, h lambda_max(M^-1 (K + (rho/epsilon) Y Y^T)) <= SAMPLED_BETA (explicit-Euler limit 2;
+#: measured on serial7 and siciliano_2link at 2500 Hz: the torque chatters from beta ~ 2 on)
+SAMPLED_BETA = 0.5
+
+
+@dataclass(frozen=True)
+class ReferenceTube:
+    """What the boundary-layer rule needs from the loop's reference (q_d, qd_d, qdd_d) sampled at
+    ``samples`` instants, Y = Y(q_d, qd_d, qd_d, qdd_d) the Slotine-Li regressor, M = M(q_d):
+
+    g_max = max ||M^-1/2 Y||_2^2 [1/(kg m^2) x (regressor units)^2], k_max = max lambda_max(M^-1 K)
+    and kappa = min lambda_min(M^-1 K) [1/s], minv = max diag(M^-1) per joint [1/(kg m^2)]."""
+
+    g_max: float
+    k_max: float
+    kappa: float
+    minv: tuple
+    samples: int
+
+
+def reference_tube(ctx, reg, K, samples: int = 200) -> ReferenceTube | None:
+    """:class:`ReferenceTube` of the loop in ``ctx`` (None without a reference to sample)."""
+    from scipy.linalg import eigh
+
+    from robust_drake.models import make_plant, resolve_urdf
+    from robust_drake.trajectories import make_reference
+
+    cfg = ctx.config
+    if cfg is None or not hasattr(cfg, "trajectory"):
+        return None
+    ref = make_reference(ctx.arm, cfg.trajectory, **dict(getattr(cfg, "trajectory_params", {}) or {}))
+    duration = float(getattr(cfg, "duration", None) or ref.duration)
+    q, qd, qdd = (np.asarray(x, float).reshape(-1, ctx.n) for x in ref(np.linspace(0.0, duration, samples)))
+    Y = reg.slotine_li(q, qd, qd, qdd)
+    plant = make_plant(str(resolve_urdf(ctx.robot, ctx.load)))
+    pc = plant.CreateDefaultContext()
+    Kd = np.diag(np.broadcast_to(np.asarray(K, float), (ctx.n,)))
+    g, kmax, kap, minv = 0.0, 0.0, np.inf, np.zeros(ctx.n)
+    for Yk, qk in zip(Y, q):
+        plant.SetPositions(pc, qk)
+        M = plant.CalcMassMatrix(pc)
+        w, V = np.linalg.eigh(M)
+        Mih = (V / np.sqrt(w)) @ V.T
+        g = max(g, float(np.linalg.norm(Mih @ Yk, 2)) ** 2)
+        lam = eigh(Kd, M, eigvals_only=True)
+        kmax, kap = max(kmax, float(lam[-1])), min(kap, float(lam[0]))
+        minv = np.maximum(minv, np.diag((V / w) @ V.T))
+    return ReferenceTube(g, kmax, kap, tuple(minv.tolist()), int(len(q)))
+
+
+def sampled_epsilon(rho, tube: ReferenceTube, period: float, beta: float = SAMPLED_BETA) -> float:
+    """SP1's boundary layer (JS eq. 18) on ||xi|| = ||Y^T r|| for arms without a published one (units
+    of Y^T r, N m rad/s per parameter unit): the smallest epsilon the sampled loop tolerates, which gives the smallest ultimate
+    bound (:func:`spong_ultimate_bound`, linear in rho epsilon).
+
+    Inside the layer eq. 18 adds the gain (rho/epsilon) Y Y^T to K on r, so M r' = -(K + (rho/
+    epsilon) Y Y^T) r + ...; sampled with period h the loop needs h lambda_max(M^-1 (K + (rho/
+    epsilon) Y Y^T)) below 2 (explicit Euler). With beta = SAMPLED_BETA (4x margin) and the
+    tube's bounds lambda_max(M^-1 Y Y^T) <= g_max, lambda_max(M^-1 K) <= k_max:
+
+        epsilon = rho g_max h / (beta - h k_max).
+
+    SP2 with epsilon_i = epsilon rho_i / ||rho|| has the same in-layer gain and the same bound
+    (sum_i rho_i epsilon_i = ||rho|| epsilon). Returns 1 when rho = 0 (u = 0) or no tube."""
+    rho = float(rho)
+    if tube is None or rho <= 0 or tube.g_max <= 0:
+        return 1.0
+    room = beta - period * tube.k_max
+    if room <= 0:
+        raise RobustDrakeError(f"sample period {period} s too long for K alone (h lambda_max(M^-1 K) = "
+                               f"{period * tube.k_max:.3g} >= {beta}); lower K or raise the rate")
+    return rho * tube.g_max * period / room
+
+
+def spong_ultimate_bound(rho_epsilon: float, tube: ReferenceTube, Lambda) -> list:
+    """Ultimate bound on |q~_j| [rad] per joint for SP1/SP2 (JS eqs. 13, 18, SP2, 20; Spong [11]).
+
+    With V = 1/2 r^T M r, eq. 13 and the skew symmetry of M' - 2C (eq. 6), V' = -r^T K r +
+    r^T Y (theta~ + u). Inside SP1's layer r^T Y (theta~ + u) <= rho ||xi|| - (rho/epsilon)
+    ||xi||^2 <= rho epsilon / 4, outside it is <= 0 (SP2: sum_i rho_i epsilon_i / 4). With
+    r^T K r >= kappa r^T M r (kappa = min lambda_min(M^-1 K)): V' <= -2 kappa V + rho epsilon / 4,
+    so ultimately r^T M r <= rho epsilon / (4 kappa) and |r_j| <= sqrt((M^-1)_jj rho epsilon /
+    (4 kappa)); q~_j is r_j through a first-order filter with pole -Lambda_j, so
+    |q~_j| <= |r_j| / Lambda_j. M over the reference tube (valid once the error is small)."""
+    lam = np.broadcast_to(np.asarray(Lambda, float), (len(tube.minv),))
+    r = np.sqrt(np.asarray(tube.minv) * float(rho_epsilon) / (4.0 * tube.kappa))
+    return (r / lam).tolist()
+
+
+def default_epsilon(rho, tube: ReferenceTube | None, period: float):
+    """(epsilon, rho epsilon) for SP1 (scalar rho) or SP2 (rho_i): :func:`sampled_epsilon` of
+    ||rho||; SP2 splits it as epsilon_i = epsilon rho_i / ||rho|| (1 where rho_i = 0, u_i = 0)."""
     r = np.asarray(rho, dtype=float)
-    if not np.isfinite(y_max) or y_max <= 0:
-        return np.ones_like(r) if r.ndim else 1.0
-    e = r * y_max ** 2 / kmin
+    e = sampled_epsilon(float(np.linalg.norm(r)), tube, period)
     if r.ndim == 0:
-        return float(e) if e > 0 else 1.0
-    return np.where(e > 0, e, 1.0)
+        return e, float(r) * e
+    nr = float(np.linalg.norm(r))
+    ei = np.where(r > 0, e * r / nr if nr > 0 else 1.0, 1.0)
+    return ei, float(np.sum(r * ei))
 
 
 def _spong_design(ctx, params, which):
@@ -473,11 +562,16 @@ def _spong_design(ctx, params, which):
     unc = box_uncertainty(theta0, reg.base_names, **box)
     rho = params.pop("rho", (unc["rho_sp1"], unc["rho_sp2"])[which])
     if "epsilon" not in params:
-        K = params.get("K", default_gains(ctx)[0])
-        y_max = reference_regressor_norm(ctx, reg)
-        eps = default_epsilon(rho, np.broadcast_to(np.asarray(K, float), (ctx.n,)), y_max)
+        K, Lam = params.get("K", default_gains(ctx)[0]), params.get("Lambda", default_gains(ctx)[1])
+        tube = reference_tube(ctx, reg, K)
+        eps, rho_eps = default_epsilon(rho, tube, ctx.period)
         params["epsilon"] = eps
-        unc["epsilon_rule"] = {"y_max": y_max, "epsilon": np.asarray(eps).tolist()}
+        unc["epsilon_rule"] = {
+            "rule": "sampled-loop margin: epsilon = rho g_max h / (beta - h k_max), SP2 epsilon_i = "
+                    "epsilon rho_i / ||rho|| (spong.sampled_epsilon)",
+            "beta": SAMPLED_BETA, "g_max": None if tube is None else tube.g_max,
+            "epsilon": np.asarray(eps).tolist(),
+            "error_bound": None if tube is None else spong_ultimate_bound(rho_eps, tube, Lam)}
     return reg.slotine_li_single, theta0, rho, unc, False
 
 

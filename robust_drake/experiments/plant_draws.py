@@ -1,0 +1,203 @@
+"""Plants drawn across a confidence ellipsoid of base parameters, each a physically valid arm.
+
+A draw is a base-parameter vector theta = theta0 + E z (CI eq. 10, E^T E = P): on the boundary
+(||z|| = 1, a uniform direction) or inside (z uniform in the unit ball, ||z|| = u^(1/p)). It is
+realised as a plant by changing the URDF's standard parameters pi (theta = K pi,
+``InverseDynamicsRegressor.K``) by the smallest relative change that reaches theta:
+
+    delta_pi = W K^T (K W K^T)^-1 (theta - K pi_nom),   W = diag(pi_nom_i^2 + body scale^2) on
+    the allowed entries (first moments: scale m r_g; rotational inertias: m r_g^2, r_g^2 = half
+    the trace of the body's inertia over m; reflected rotor inertias: their value), 0 on the
+    masses and joint damping (kept as in the URDF),
+
+then made physically valid where only unidentifiable entries allow it: a body's rotational
+inertia about its centre of mass must be positive semidefinite and satisfy the triangle
+inequality; only the inertia entries K does not see (columns of K equal to zero, e.g. Ixx, Iyy,
+Ixy of a planar arm) are changed for that (:func:`make_physical`). A draw whose reflected rotor inertia would be negative, or
+whose body stays invalid, is rejected and drawn again (counted). Every kept plant's base
+parameters are recomputed by Drake from the modified plant and must equal theta.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from robust_drake.errors import RobustDrakeError
+
+
+@dataclass
+class PlantDraw:
+    """One drawn plant: ``theta`` its base parameters, ``radius`` = ||z|| (Mahalanobis radius in
+    the set), ``kind`` "boundary" or "interior", ``setup(plant, context)`` applies it."""
+
+    theta: np.ndarray
+    radius: float
+    kind: str
+    pi: np.ndarray
+    setup: object
+
+
+def _allowed(reg) -> np.ndarray:
+    """Standard entries a draw may change: per body [m, mc(3), I(6)] -> mc and I; extras Ia."""
+    ok = np.zeros(reg.p_standard, bool)
+    for k in range(len(reg._nodes)):
+        ok[10 * k + 1:10 * k + 10] = True
+    base = 10 * len(reg._nodes)
+    for c, (_, kind, _) in enumerate(reg._extras):
+        ok[base + c] = kind == "Ia"
+    return ok
+
+
+def standard_for_base(reg, theta, pi_nom=None) -> np.ndarray:
+    """pi with K pi = theta, nearest to pi_nom in relative terms (module docstring)."""
+    pi_nom = reg.standard_parameters() if pi_nom is None else np.asarray(pi_nom, float)
+    K = np.asarray(reg.K, float)
+    w = np.where(_allowed(reg), pi_nom ** 2, 0.0)
+    for k in range(len(reg._nodes)):  # body scales: m r_g [kg m] and m r_g^2 [kg m^2]
+        m = max(pi_nom[10 * k], 0.0)
+        rg2 = np.sum(pi_nom[10 * k + 4:10 * k + 7]) / (2.0 * m) if m > 0 else 0.0
+        w[10 * k + 1:10 * k + 4] += m * m * rg2
+        w[10 * k + 4:10 * k + 10] += (m * rg2) ** 2
+    base = 10 * len(reg._nodes)
+    w[base:] += np.where(w[base:] > 0, 0.0, 1e-6 * (w.max() if w.max() > 0 else 1.0))
+    w *= _allowed(reg)
+    KW = K * w
+    d = np.linalg.lstsq(KW @ K.T, np.asarray(theta, float) - K @ pi_nom, rcond=None)[0]
+    pi = pi_nom + KW.T @ d
+    if not np.allclose(K @ pi, theta, rtol=1e-9, atol=1e-12 * max(np.abs(theta).max(), 1.0)):
+        raise RobustDrakeError("these base parameters cannot be reached with the masses kept")
+    return pi
+
+
+def _central_valid(Iv, m, h, tol=1e-12) -> bool:
+    """Rotational inertia about the centre of mass PSD and triangle-valid (Iv about the origin)."""
+    I = np.array([[Iv[0], Iv[3], Iv[4]], [Iv[3], Iv[1], Iv[5]], [Iv[4], Iv[5], Iv[2]]])
+    c = h / m
+    Ic = I - m * (c @ c * np.eye(3) - np.outer(c, c))
+    lam = np.linalg.eigvalsh(0.5 * (Ic + Ic.T))
+    scale = tol * max(abs(lam).max(), 1e-30)
+    return bool(lam[0] >= -scale and lam[2] <= lam[0] + lam[1] + scale)
+
+
+def _central_margin(Iv, m, h) -> bool:
+    """:func:`_central_valid` with a relative margin of 1e-6 (Drake checks with its own tolerance)."""
+    return _central_valid(Iv, m, h, tol=-1e-6)
+
+
+def _round_xy(Iv, m, h):
+    """Inertia entries (about the origin) whose central xy block is diag(a, a), a = max(Izz_c / 2
+    (1 + 1e-3), its former mean): valid whenever Izz_c > 0 (the triangle inequality then holds)."""
+    I = np.array([[Iv[0], Iv[3], Iv[4]], [Iv[3], Iv[1], Iv[5]], [Iv[4], Iv[5], Iv[2]]])
+    c = h / m
+    S = m * (c @ c * np.eye(3) - np.outer(c, c))
+    Ic = I - S
+    if Ic[2, 2] <= 0:
+        return None
+    a = max(0.5 * Ic[2, 2] * (1 + 1e-3), 0.5 * (Ic[0, 0] + Ic[1, 1]))
+    Ic[0, 0] = Ic[1, 1] = a
+    Ic[0, 1] = Ic[1, 0] = 0.0
+    Io = Ic + S
+    return np.array([Io[0, 0], Io[1, 1], Io[2, 2], Io[0, 1], Io[0, 2], Io[1, 2]])
+
+
+def make_physical(reg, pi) -> np.ndarray | None:
+    """pi with every body's central inertia valid, changing only inertia entries K does not see:
+    where Ixx, Iyy, Ixy are all unseen (a planar arm turning about z) the central xy block is made
+    round (:func:`_round_xy`); otherwise the unseen diagonal entries are raised by the same
+    smallest amount (bisection). None if that cannot make the body valid (e.g. Izz about the centre
+    of mass <= 0: the drawn first moments and Izz are not a rigid body) or a reflected rotor
+    inertia is negative."""
+    pi = np.array(pi, float)
+    unseen = np.all(np.abs(np.asarray(reg.K, float)) < 1e-12, axis=0)
+    for k in range(len(reg._nodes)):
+        m, h, Iv = pi[10 * k], pi[10 * k + 1:10 * k + 4], pi[10 * k + 4:10 * k + 10].copy()
+        if m <= 0 or _central_valid(Iv, m, h):
+            continue
+        free = unseen[10 * k + 4:10 * k + 10]
+        if free[0] and free[1] and free[3]:
+            new = _round_xy(Iv, m, h)
+            if new is None or not _central_margin(new, m, h):
+                return None
+            pi[10 * k + 4:10 * k + 10] = new
+            continue
+        up = np.zeros(6)
+        up[:3] = free[:3]
+        top = 10.0 * (abs(Iv).max() + m * h @ h / m ** 2)
+        if not up.any() or not _central_margin(Iv + top * up, m, h):
+            return None
+        lo, hi = 0.0, top
+        for _ in range(60):
+            mid = 0.5 * (lo + hi)
+            lo, hi = (lo, mid) if _central_margin(Iv + mid * up, m, h) else (mid, hi)
+        pi[10 * k + 4:10 * k + 10] = Iv + hi * up
+    base = 10 * len(reg._nodes)
+    for c, (_, kind, _) in enumerate(reg._extras):
+        if kind == "Ia" and pi[base + c] < 0:
+            return None
+    return pi
+
+
+def plant_setup(reg, pi):
+    """``setup(plant, context)`` writing pi into a plant built from the regressor's URDF."""
+    from pydrake.multibody.tree import SpatialInertia, UnitInertia
+
+    bodies = [nd.body.name() for nd in reg._nodes]
+    extras = list(reg._extras)
+    base = 10 * len(bodies)
+
+    def setup(plant, ctx):
+        for k, name in enumerate(bodies):
+            m, h, Iv = pi[10 * k], pi[10 * k + 1:10 * k + 4], pi[10 * k + 4:10 * k + 10]
+            if m <= 0:
+                continue
+            G = UnitInertia(*(Iv / m))  # about the body origin: Ixx, Iyy, Izz, Ixy, Ixz, Iyz
+            plant.GetBodyByName(name).SetSpatialInertiaInBodyFrame(ctx, SpatialInertia(m, h / m, G))
+        for c, (ename, kind, _) in enumerate(extras):
+            if kind != "Ia":
+                continue
+            jname = ename.split("_", 1)[1]
+            for a in plant.GetJointActuatorIndices():
+                act = plant.get_joint_actuator(a)
+                if act.joint().name() == jname:
+                    act.SetRotorInertia(ctx, pi[base + c] / act.gear_ratio(ctx) ** 2)
+    return setup
+
+
+def _z(rng, p, kind):
+    d = rng.standard_normal(p)
+    d /= np.linalg.norm(d)
+    return d if kind == "boundary" else d * rng.uniform() ** (1.0 / p)
+
+
+def draw_plants(reg, theta0, P, count: int, rng, boundary_share: float = 0.5, tries: int = 50):
+    """``count`` :class:`PlantDraw` across E(P, theta0): the first round(boundary_share count) on
+    its boundary, the rest inside; returns (draws, rejected)."""
+    from robust_drake.models import make_plant
+    from robust_drake.uncertainty.ellipsoid import Ellipsoid
+
+    E = Ellipsoid(np.asarray(theta0, float), np.asarray(P, float)).E
+    pi_nom = reg.standard_parameters()
+    n_b = int(round(boundary_share * count))
+    out, rejected = [], 0
+    plant = make_plant(reg.urdf)
+    for i in range(count):
+        kind = "boundary" if i < n_b else "interior"
+        for _ in range(tries):
+            z = _z(rng, len(theta0), kind)
+            theta = np.asarray(theta0, float) + E @ z
+            pi = make_physical(reg, standard_for_base(reg, theta, pi_nom))
+            if pi is not None:
+                break
+            rejected += 1
+        else:
+            raise RobustDrakeError(f"no physically valid plant in {tries} {kind} draws of the set")
+        setup = plant_setup(reg, pi)
+        ctx = plant.CreateDefaultContext()
+        setup(plant, ctx)
+        th_drake = reg.base_parameters(plant, ctx)
+        if not np.allclose(th_drake, theta, rtol=1e-8, atol=1e-10 * max(np.abs(theta).max(), 1.0)):
+            raise RobustDrakeError("a drawn plant does not have the drawn base parameters (internal error)")
+        out.append(PlantDraw(theta=th_drake, radius=float(np.linalg.norm(z)), kind=kind, pi=pi, setup=setup))
+    return out, rejected
