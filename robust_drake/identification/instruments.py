@@ -122,7 +122,7 @@ def cutoff_sweep(paths, robot, regressor, cutoffs, torque: str = "tau_meas", wei
            "least_squares": [], "instrumental_variables": [],
            "nominal": [float(x) for x in regressor.base_parameters()]}
     for fc in cutoffs:
-        d = load(paths, robot=robot, n_joints=n_joints, torque=torque, cutoff_hz=fc)
+        d = load(paths, robot=robot, n_joints=n_joints, torque=torque, cutoff_hz=fc, quiet=True)  # reported once
         z = load_companion(paths, d, cutoff_hz=fc * ratio, torque=torque)
         c, cz = ColumnCache(d, regressor), ColumnCache(z, regressor)
         w = np.ones(d.n) if weights is None else np.asarray(weights, float)

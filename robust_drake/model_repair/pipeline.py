@@ -353,17 +353,25 @@ def run_repair_demo(out_dir: str, kind: str = "stribeck", seed: int = 0, progres
     log(f"simulated experiment: hidden {truth['kind']} on joint {truth['joint']} {truth['parameters']}")
     opts = RepairOptions(robot=truth["robot"], **options)
     rep = run_repair([fit_csv], opts, validate_paths=[val_csv], out_dir=out_dir, progress=log)
-    rep["truth"] = {k: v for k, v in truth.items() if k in ("kind", "joint", "parameters", "robot")}
+    attach_truth(rep, {k: v for k, v in truth.items() if k in ("kind", "joint", "parameters", "robot")}, out_dir)
     fmt = lambda xs: "[" + ", ".join(f"{x:.4f}" for x in xs) + "]"  # noqa: E731
     log(f"validation RMS torque error [N m]: baseline {fmt(rep['baseline']['rms_validate'])} -> "
         f"repaired {fmt(rep['final']['rms_validate'])}")
     for e in rep["effects"]:
-        log(f"found {e['kind']} on joint {e['joint']}: "
+        where = "all joints" if e["joint"] is None else f"joint {e['joint']} ({rep['joint_names'][e['joint']]})"
+        log(f"found {e['kind']} on {where}: "
             + ", ".join(f"{k} = {v:.4g}" for k, v in e["parameters"].items() if isinstance(v, float)))
-    tmp_json = os.path.join(out_dir, ".report.json.tmp")
-    with open(tmp_json, "w") as fh:
-        json.dump(rep, fh, indent=2, default=_json_default)
-    os.replace(tmp_json, os.path.join(out_dir, "report.json"))  # never a half-written report
+    return rep
+
+
+def attach_truth(rep: dict, truth: dict, out_dir: str | None) -> dict:
+    """Simulated data: put what the simulator was given (``truth``: ``kind``, ``joint``,
+    ``parameters``, optionally ``friction`` = {"coulomb", "viscous"}) into the report as
+    ``rep["truth"]`` and rewrite report.json / report.md in ``out_dir`` (report.md then shows the
+    truth beside what was found, ``report._md_truth``)."""
+    rep["truth"] = truth
+    if out_dir is not None and os.path.isfile(os.path.join(out_dir, "report.json")):
+        write_report_files(rep, out_dir)
     return rep
 
 
