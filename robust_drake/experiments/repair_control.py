@@ -23,10 +23,11 @@ for 10-150 ms at every reversal; there friction balances whatever torque is appl
 velocity-friction column represents. The stuck rows are left out of the fit (stiction handling,
 ``identification.data.friction_exclusion``), which is enough to rank the cogging first with
 its amplitude within 2 %, but the short stops at reversals (too short to be detected after the
-8 Hz low-pass) still drew a Stribeck dip, a presliding term and a time delay on the shoulder
-that the simulator does not have. With the lower friction and the stiffer excitation the elbow
-sticks on about 4 % of the samples and the repair names the cogging alone (measured in
-BUILD_NOTES.md, "Repair"; asserted in tests/test_demo_truth.py).
+8 Hz low-pass) still drew a 5.9 ms time delay, presliding friction and a 0.01 N m cogging on the
+shoulder, none of which the simulator has. With the lower friction and the stiffer excitation no
+joint sticks on the demo's fit run and the repair names the cogging alone, amplitude and phase
+within 1 % (measured in BUILD_NOTES.md, "Identification and repair"; asserted in
+tests/test_demo_truth.py). The same friction and cogging are on the arm SP1 then controls.
 """
 
 from __future__ import annotations
