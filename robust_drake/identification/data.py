@@ -476,8 +476,8 @@ def validate_raw(raw: RawData, n_joints: int | None = None, allow_degrees: bool 
     for i in range(raw.n):
         if tau_span[i] == 0.0:
             warns.append(
-                f"{os.path.basename(src)}: torque {i + 1} is constant ({raw.tau[0, i]:g} N m): "
-                "treated as an unpowered joint"
+                f"{os.path.basename(src)}: torque column {(raw.columns.get('tau') or [None] * raw.n)[i] or f'tau{i + 1}'} "
+                f"is constant ({raw.tau[0, i]:g} N m): joint {i} treated as unpowered"
             )
     counts = position_counts(raw.q)
     warns += velocity_unit_warnings(raw)
