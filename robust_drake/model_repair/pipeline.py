@@ -92,10 +92,14 @@ def plausibility(kind: str, params: dict, robot: str) -> str:
         return txt
     backlash = "" if hw.backlash_deg is None else f"(about {hw.backlash_deg:g} deg on the {motor}) "
     if kind in ("stribeck", "smooth_coulomb", "asymmetric_coulomb"):
-        return (f"low-velocity friction shape ({kind}); QDD motors with a single gear stage show "
-                "a smooth Coulomb transition and some breakaway; backlash "
-                + backlash
-                + "adds a torque dip at every reversal")
+        drive = getattr(hw, "drive", None) or "unknown"
+        txt = f"low-velocity friction shape ({kind}) of the {motor}"
+        if gear:
+            txt += (f" ({drive} drive, {hw.gear_ratio:g}:1 {hw.gearbox} stage: gear meshing gives a smooth "
+                    "Coulomb transition and some breakaway; backlash " + backlash + "adds a torque dip at every reversal)")
+        elif drive == "direct":
+            txt += " (direct drive: bearing friction only, no gear stage)"
+        return txt
     if kind == "presliding_friction":
         Fd, x0 = p.get("presliding_torque", np.nan), p.get("presliding_displacement", np.nan)
         txt = (f"presliding (Dahl) friction: {Fd:.3g} N m of the friction level builds up "
@@ -113,7 +117,10 @@ def plausibility(kind: str, params: dict, robot: str) -> str:
                 + ("" if abs(g) < 0.3 else "; NOTE: larger than a motor constant usually errs"))
     if kind == "time_delay":
         d = p.get("delay", np.nan)
-        return f"delay {d * 1e3:.3g} ms between recorded torque and motion (CAN bus / driver loop)" + (
+        bus = getattr(hw, "bus", None)
+        src = (f"{bus} bus / driver loop" + (f", declared latency {hw.bus_latency * 1e3:.3g} ms" if getattr(
+            hw, "bus_latency", None) else "")) if bus else "no bus or delay source in the robot's description"
+        return f"delay {d * 1e3:.3g} ms between recorded torque and motion ({src})" + (
             "" if 0 <= d < 0.05 else "; NOTE: unusual size or sign")
     if kind == "spring":
         return "joint-angle proportional torque: cables or a balancing spring"
