@@ -661,8 +661,8 @@ def exclusion_messages(data: "IdentData", exclude: np.ndarray | None, joint_name
     names = list(joint_names) if joint_names is not None else [f"joint{j}" for j in range(data.n)]
     settle = filter_settling_s(data.dt, data.filter.cutoff_hz if data.filter.derivatives != "given" else None,
                                data.filter.order or 1)
-    return [f"stiction: joint {j} ({names[j]}) sticks on {data.stuck[:, j].mean():.0%} of the fit samples; "
-            f"those rows and {settle:.2g} s of filter settling on either side ({exclude[:, j].mean():.0%} of "
+    return [f"stiction: joint {j} ({names[j]}) sticks on {data.stuck[:, j].mean():.1%} of the fit samples; "
+            f"those rows and {settle:.2g} s of filter settling on either side ({exclude[:, j].mean():.1%} of "
             f"joint {j}'s rows) are left out of joint {j}'s equation in every fit and held-out score "
             "(friction there is not a function of velocity)"
             for j in range(data.n) if exclude[:, j].any()]
