@@ -143,7 +143,7 @@ def run(args) -> int:
         if loop is not None:
             rep = loop["repair"]
             doc["repair"] = {"baseline": rep["baseline"], "final": rep["final"], "effects": rep["effects"],
-                             "unexplained_structure": rep["unexplained_structure"]}
+                             "unexplained_structure": rep["unexplained_structure"], "truth": rep.get("truth")}
             doc["tracking"] = loop["tracking"]
             doc["improvement"] = loop["improvement"]
         print_json(doc)
