@@ -444,9 +444,16 @@ def velocity_unit_warnings(raw) -> list[str]:
         slope = float(dq[:, j] @ raw.qd[:, j]) / den
         if not 1.0 / VELOCITY_SLOPE_TOL <= slope <= VELOCITY_SLOPE_TOL:
             hint = " (positions in degrees, velocities in rad/s?)" if 40 < slope < 80 else ""
-            out.append(f"{os.path.basename(raw.source)}: d(q{j + 1})/dt is {slope:.3g} x the logged "
-                       f"velocity qd{j + 1}{hint}")
+            out.append(f"{os.path.basename(raw.source)}: joint {j}: d({column_name(raw, 'q', j)})/dt is "
+                       f"{slope:.3g} x the logged velocity {column_name(raw, 'qd', j)}{hint}")
     return out
+
+
+def column_name(raw: RawData, kind: str, j: int) -> str:
+    """The file's name of joint ``j``'s (0-based) ``kind`` column ("q", "qd", "tau"): e.g. ``q2`` or
+    ``pos_meas2`` (the file's own 1-based names, quoted as such next to the 0-based joint)."""
+    names = raw.columns.get(kind) or []
+    return names[j] if j < len(names) else f"{kind}{j + 1}"
 
 
 def validate_raw(raw: RawData, n_joints: int | None = None, allow_degrees: bool = False) -> dict:
@@ -469,14 +476,15 @@ def validate_raw(raw: RawData, n_joints: int | None = None, allow_degrees: bool 
     span = np.ptp(raw.q, axis=0)
     for i in range(raw.n):
         if span[i] == 0.0:
-            raise DataError(f"{src}: position q{i + 1} is constant; the joint never moved (wrong column?)")
+            raise DataError(f"{src}: position column {column_name(raw, 'q', i)} (joint {i}) is constant; the joint "
+                            "never moved (wrong column?)")
     tau_span = np.ptp(raw.tau, axis=0)
     if np.all(tau_span == 0.0):
         raise DataError(f"{src}: every torque column is constant; nothing drives the motion")
     for i in range(raw.n):
         if tau_span[i] == 0.0:
             warns.append(
-                f"{os.path.basename(src)}: torque column {(raw.columns.get('tau') or [None] * raw.n)[i] or f'tau{i + 1}'} "
+                f"{os.path.basename(src)}: torque column {column_name(raw, 'tau', i)} "
                 f"is constant ({raw.tau[0, i]:g} N m): joint {i} treated as unpowered"
             )
     counts = position_counts(raw.q)
@@ -485,7 +493,7 @@ def validate_raw(raw: RawData, n_joints: int | None = None, allow_degrees: bool 
     if not allow_degrees and (peak > DEGREE_THRESHOLD_RAD).any():
         i = int(np.argmax(peak))
         raise DataError(
-            f"{src}: |q{i + 1}| reaches {peak[i]:.4g}, more than two turns: positions look like "
+            f"{src}: |{column_name(raw, 'q', i)}| (joint {i}) reaches {peak[i]:.4g}, more than two turns: positions look like "
             "degrees (convert to rad); pass allow_degrees=True if the joint really turns that far"
         )
     return {"dt": float(np.mean(dt)), "jitter": jitter, "max_dt": float(dt.max()), "warnings": warns,
