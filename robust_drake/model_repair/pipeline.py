@@ -360,7 +360,7 @@ def run_repair_demo(out_dir: str, kind: str = "stribeck", seed: int = 0, progres
     log(f"simulated experiment: hidden {truth['kind']} on joint {truth['joint']} {truth['parameters']}")
     opts = RepairOptions(robot=truth["robot"], **options)
     rep = run_repair([fit_csv], opts, validate_paths=[val_csv], out_dir=out_dir, progress=log)
-    attach_truth(rep, {k: v for k, v in truth.items() if k in ("kind", "joint", "parameters", "robot")}, out_dir)
+    attach_truth(rep, {k: v for k, v in truth.items() if k in ("kind", "joint", "parameters", "robot", "friction")}, out_dir)
     fmt = lambda xs: "[" + ", ".join(f"{x:.4f}" for x in xs) + "]"  # noqa: E731
     log(f"validation RMS torque error [N m]: baseline {fmt(rep['baseline']['rms_validate'])} -> "
         f"repaired {fmt(rep['final']['rms_validate'])}")

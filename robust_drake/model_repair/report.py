@@ -415,7 +415,7 @@ def _md_truth(rep: dict) -> list[str]:
                          f"{_num(got, '.4g')} | {err} |")
     if not hidden:
         L.append("| (none hidden) | | | | | |")
-    return L
+    return L + [""]
 
 
 def render_markdown(rep: dict) -> str:
