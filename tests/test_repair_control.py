@@ -30,9 +30,9 @@ def test_repair_lowers_validation_error(loop):
 def test_repaired_model_improves_sp1_tracking(loop):
     """The repaired model compensates the hidden cogging: SP1 on the true arm tracks as the same arm
     without the cogging does (within 3 %), and better than with the baseline model in the worst
-    case on both paths and on JS eq. 58's |error_task| on the circle. (On the CPT the signed sum
-    of eq. 58 is *lowered* by the uncompensated cogging, so the reference row, not the baseline,
-    is the yardstick there.)"""
+    case on both paths and on JS eq. 58's |error_task| on the circle. (On the CPT the uncompensated
+    cogging happens to *lower* eq. 58's L2 error -- the cogging-free arm tracks worse -- so the
+    reference row, not the baseline, is the yardstick there.)"""
     for traj in ("cpt", "circle"):
         rows = {r["model"]: r for r in loop["tracking"] if r["trajectory"] == traj}
         b, f, ref = rows["baseline"], rows["repaired"], rows["no hidden effect"]

@@ -108,7 +108,7 @@ def _tracking_line(traj: str, gain: float, rows: dict) -> str:
     gap = rows["repaired"]["error_task"] / ref["error_task"] - 1.0
     return (text + f"; the arm without the hidden effect (exact friction compensation) {ref['error_task']:.4g} m, "
             f"the repaired model {gap:+.1%} from it"
-            + (" (JS eq. 58 sums the signed error: here the uncompensated cogging lowered it)"
+            + (" (on this path the uncompensated cogging happens to oppose SP1's own error)"
                if gain < 0 and abs(gap) < 0.05 else ""))
 
 

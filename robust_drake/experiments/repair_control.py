@@ -95,9 +95,10 @@ def tracking_comparison(report, trajectories=("cpt", "circle"), duration=None, p
     ``reference``) on the same arm *without* the hidden effect, compensated with the simulator's
     own friction (model "no hidden effect"): the tracking a perfect repair would reach.
 
-    JS eq. 58's |error_task| is the norm of the *summed* (signed) task error, so an uncompensated
-    disturbance can lower it on one path (measured on the CPT: the cogging-free arm 7.11 mm, the
-    arm with the cogging and exact friction compensation 5.22 mm); the reference row shows that.
+    An uncompensated disturbance can happen to lower JS eq. 58's |error_task| (the L2 norm of the
+    task error) on one path by opposing SP1's own error there (measured on the CPT with exact
+    friction compensation: the cogging-free arm 7.11 mm, the arm with the cogging 5.22 mm); the
+    reference row shows that, so the baseline is not the only yardstick.
     ``progress(message)`` receives progress lines (None: the ``robust_drake`` logger)."""
     import numpy as np
 
