@@ -9,7 +9,7 @@ from robust_drake.experiments.repair_control import TRUE_EFFECT, run
 @pytest.fixture(scope="module")
 def loop(tmp_path_factory):
     out = tmp_path_factory.mktemp("repair_control")
-    return run(str(out), duration=12.0, track_duration=2.0, trajectories=("cpt",), progress=lambda m: None)
+    return run(str(out), duration=12.0, track_duration=3.0, trajectories=("cpt", "circle"), progress=lambda m: None)
 
 
 def test_hidden_cogging_is_found(loop):
@@ -28,7 +28,15 @@ def test_repair_lowers_validation_error(loop):
 
 
 def test_repaired_model_improves_sp1_tracking(loop):
-    rows = {r["model"]: r for r in loop["tracking"]}
-    b, f = rows["baseline"], rows["repaired"]
-    assert f["error_task"] < 0.9 * b["error_task"], (b["error_task"], f["error_task"])
-    assert f["maxerr_task"] < b["maxerr_task"]
+    """The repaired model compensates the hidden cogging: SP1 on the true arm tracks as the same arm
+    without the cogging does (within 3 %), and better than with the baseline model in the worst
+    case on both paths and on JS eq. 58's |error_task| on the circle. (On the CPT the uncompensated
+    cogging happens to *lower* eq. 58's L2 error -- the cogging-free arm tracks worse -- so the
+    reference row, not the baseline, is the yardstick there.)"""
+    for traj in ("cpt", "circle"):
+        rows = {r["model"]: r for r in loop["tracking"] if r["trajectory"] == traj}
+        b, f, ref = rows["baseline"], rows["repaired"], rows["no hidden effect"]
+        for key in ("error_task", "maxerr_task"):
+            assert f[key] == pytest.approx(ref[key], rel=0.03), (traj, key, f[key], ref[key])
+        assert f["maxerr_task"] < 0.95 * b["maxerr_task"], (traj, b["maxerr_task"], f["maxerr_task"])
+    assert loop["improvement"]["circle"] > 0.1, loop["improvement"]

@@ -346,8 +346,8 @@ def test_unpowered_joint_warning_reaches_the_console(sim, tmp_path, capsys):
     out = tmp_path / "rep"
     status, _, err = _repair(capsys, f, "--robot", ROBOT, "--validate", val, "--out", out, *QUICK)
     assert status == 0
-    assert "warning: f.csv: torque 2 is constant (0 N m): treated as an unpowered joint" in err.splitlines()
-    assert "f.csv: torque 2 is constant (0 N m): treated as an unpowered joint" in json.load(
+    assert "warning: f.csv: torque column tau2 is constant (0 N m): joint 1 treated as unpowered" in err.splitlines()
+    assert "f.csv: torque column tau2 is constant (0 N m): joint 1 treated as unpowered" in json.load(
         open(out / "report.json"))["warnings"]
 
 

@@ -32,26 +32,51 @@ def effect_label(effect) -> str:
 
 
 class ColumnCache:
-    """Parallel-filtered columns of one dataset: rigid body, friction, and each effect (memoised)."""
+    """Parallel-filtered columns of one dataset: rigid body, friction, and each effect (memoised).
 
-    def __init__(self, data: IdentData, regressor):
-        self.data = data
+    ``exclude`` (N, n) bool: rows of joint j's equation left out of every fit and held-out score
+    (stiction, :func:`~robust_drake.identification.data.friction_exclusion`). They are weighted
+    out by zeroing both the columns and the torque there: ``data`` is the dataset with those
+    torques set to 0 (``source`` the dataset as given), so every consumer of ``model()`` and
+    ``data.tau`` (least squares, IV, held-out folds, consistent fit) ignores them and their
+    residual is 0. ``rows`` is the complementary mask; :meth:`rms` counts only those rows."""
+
+    def __init__(self, data: IdentData, regressor, exclude=None):
+        self.source = data
+        self.exclude = None if exclude is None or not np.any(exclude) else np.asarray(exclude, bool)
+        self.keep = None if self.exclude is None else (~self.exclude).astype(float)
+        self.data = data if self.keep is None else data.with_tau(data.tau * self.keep)
         Yrb, nrb = rigid_body_columns(regressor, data)
         Yfr, nfr = friction_columns(data)
-        self.base = parallel_filter(data, np.concatenate([Yrb, Yfr], axis=2))
+        self.base = self._masked(parallel_filter(data, np.concatenate([Yrb, Yfr], axis=2)))
         self.base_names = nrb + nfr
         self.n_rigid = len(nrb)
         self._effects: dict = {}
+
+    @property
+    def rows(self) -> np.ndarray | None:
+        """(N, n) bool: the equation rows in use (None = all)."""
+        return None if self.exclude is None else ~self.exclude
+
+    def _masked(self, Y: np.ndarray) -> np.ndarray:
+        return Y if self.keep is None else Y * self.keep[:, :, None]
+
+    def rms(self, residual) -> np.ndarray:
+        """RMS per joint of a residual (N, n) over the rows in use."""
+        r2 = np.asarray(residual, float) ** 2
+        if self.keep is None:
+            return np.sqrt(np.mean(r2, axis=0))
+        return np.sqrt(np.sum(r2 * self.keep, axis=0) / np.maximum(self.keep.sum(axis=0), 1.0))
 
     def effect(self, effect) -> tuple[np.ndarray, list[str]]:
         # keyed by the object and holding a reference to it (an id() key could be reused)
         key = (effect_label(effect), id(effect))
         if key not in self._effects:
-            Y, names = effect.columns(self.data)
+            Y, names = effect.columns(self.source)  # the measured torque, not the zeroed one
             Y = np.asarray(Y, float)
             if Y.ndim == 2:
                 Y = Y[:, :, None]
-            self._effects[key] = (parallel_filter(self.data, Y), list(names), effect)
+            self._effects[key] = (self._masked(parallel_filter(self.data, Y)), list(names), effect)
         return self._effects[key][:2]
 
     def model(self, effects) -> tuple[np.ndarray, list[str], list[slice]]:
@@ -97,6 +122,8 @@ def predict_tau(cache: "ColumnCache", effects, theta, rows=None, iterations: int
     tau_hat = m.copy()
     for _ in range(iterations):
         new = m + sum(e.evaluate_columns(q, qd, qdd, tau_hat) @ theta[sl] for e, sl in imp)
+        if cache.keep is not None:
+            new = new * cache.keep[rows]
         done = np.max(np.abs(new - tau_hat)) < 1e-10
         tau_hat = new
         if done:
@@ -108,9 +135,9 @@ def fit_model(cache: ColumnCache, effects, weights=None) -> tuple[LSResult, list
     """Final LS fit of baseline + effects on all fit data with fixed per-joint ``weights``
     (the selection's baseline weights; None = OLS). ``residual``/``rms`` are output errors."""
     Y, names, slices = cache.model(effects)
-    res = solve_ls(Y, cache.data.tau, names, weights=weights)
+    res = solve_ls(Y, cache.data.tau, names, weights=weights, rows=cache.rows)
     res.residual = cache.data.tau - predict_tau(cache, effects, res.theta)
-    res.rms = np.sqrt(np.mean(res.residual**2, axis=0))
+    res.rms = cache.rms(res.residual)
     return res, slices
 
 

@@ -103,7 +103,7 @@ def fit_model_iv(cache, icache, effects, weights, n_eff_factor: float = 1.0):
         raise ValueError(f"instrument rows {Z.shape} do not match the data {Y.shape}")
     res = solve_iv(Y, Z, cache.data.tau, names, weights, n_eff_factor)
     res.residual = cache.data.tau - predict_tau(cache, effects, res.theta)
-    res.rms = np.sqrt(np.mean(res.residual**2, axis=0))
+    res.rms = cache.rms(res.residual)  # over the rows in use (stiction rows left out)
     return res, slices
 
 
@@ -115,16 +115,17 @@ def cutoff_sweep(paths, robot, regressor, cutoffs, torque: str = "tau_meas", wei
 
     Returns ``{"cutoff_hz": [...], "names": base names, "least_squares": [[...] per cut-off],
     "instrumental_variables": [[...]], "nominal": URDF base parameters}``."""
-    from robust_drake.identification.data import load, load_companion
+    from robust_drake.identification.data import friction_exclusion, load, load_companion
 
     p0 = len(regressor.base_names)
     out = {"cutoff_hz": [float(c) for c in cutoffs], "names": list(regressor.base_names),
            "least_squares": [], "instrumental_variables": [],
            "nominal": [float(x) for x in regressor.base_parameters()]}
     for fc in cutoffs:
-        d = load(paths, robot=robot, n_joints=n_joints, torque=torque, cutoff_hz=fc)
+        d = load(paths, robot=robot, n_joints=n_joints, torque=torque, cutoff_hz=fc, quiet=True)  # reported once
         z = load_companion(paths, d, cutoff_hz=fc * ratio, torque=torque)
-        c, cz = ColumnCache(d, regressor), ColumnCache(z, regressor)
+        ex = friction_exclusion(d)  # the repair's stiction rule
+        c, cz = ColumnCache(d, regressor, exclude=ex), ColumnCache(z, regressor, exclude=ex)
         w = np.ones(d.n) if weights is None else np.asarray(weights, float)
         out["least_squares"].append([float(x) for x in fit_model(c, [], w)[0].theta[:p0]])
         out["instrumental_variables"].append([float(x) for x in fit_model_iv(c, cz, [], w)[0].theta[:p0]])

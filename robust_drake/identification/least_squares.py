@@ -140,13 +140,17 @@ def solve_gram(G: np.ndarray, g: np.ndarray, tol: float = RANK_TOL):
 
 
 def solve_ls(Y: np.ndarray, tau: np.ndarray, names: list[str], weights=None,
-             tol: float = RANK_TOL, warn: bool = True) -> LSResult:
+             tol: float = RANK_TOL, warn: bool = True, rows=None) -> LSResult:
     """Least squares ``tau ~ Y theta`` (joints stacked), optional per-joint row weights.
 
     Solved through the normal equations of the column-normalised regressor (p x p; the data are
     touched once, so tens of thousands of samples cost milliseconds). Rank-deficient problems are
     solved in the minimum-norm sense on the identifiable subspace (truncated eigen-decomposition);
     the unidentifiable parameters are named and get ``se = inf``.
+
+    ``rows`` (N, n) bool: the equation rows in use when others were weighted out by zeroing
+    their columns and torque (``fitting.ColumnCache``, stiction); the residual RMS and the
+    degrees of freedom count only those (None = all).
     """
     Y = np.asarray(Y, float)
     tau = np.asarray(tau, float)
@@ -163,7 +167,8 @@ def solve_ls(Y: np.ndarray, tau: np.ndarray, names: list[str], weights=None,
     resid = tau - Y @ theta
     r_w = resid * w[None, :]
     rss_w = float(np.sum(r_w**2))
-    dof = max(N * n - rank, 1)
+    used = np.ones((N, n)) if rows is None else np.asarray(rows, float)
+    dof = max(int(used.sum()) - rank, 1)
     cov = np.asarray(cov0, float) * rss_w / dof
     se = np.sqrt(np.maximum(np.diag(cov), 0.0))
     for u in unident:
@@ -176,19 +181,21 @@ def solve_ls(Y: np.ndarray, tau: np.ndarray, names: list[str], weights=None,
         )
         if warn:
             warnings.warn(msgs[-1], DataWarning, stacklevel=2)
-    rms = np.sqrt(np.mean(resid**2, axis=0))
+    rms = np.sqrt(np.sum(resid**2 * used, axis=0) / np.maximum(used.sum(axis=0), 1.0))
     return LSResult(
         theta=theta, names=list(names), se=se, sigma=rms, weights=w, cond=cond, rank=rank,
         unidentifiable=unident, residual=resid, rms=rms, N=N, rss_weighted=rss_w, warnings=msgs, cov=cov,
     )
 
 
-def solve_wls(Y, tau, names, iterations: int = 2, tol: float = RANK_TOL, warn: bool = True) -> LSResult:
-    """Two-step weighted LS: OLS, then rows of joint j weighted by 1 / sigma_j (repeated)."""
-    res = solve_ls(Y, tau, names, tol=tol, warn=warn)
+def solve_wls(Y, tau, names, iterations: int = 2, tol: float = RANK_TOL, warn: bool = True,
+              rows=None) -> LSResult:
+    """Two-step weighted LS: OLS, then rows of joint j weighted by 1 / sigma_j (repeated);
+    ``rows`` as in :func:`solve_ls`."""
+    res = solve_ls(Y, tau, names, tol=tol, warn=warn, rows=rows)
     for _ in range(iterations):
         sigma = np.maximum(res.rms, 1e-9 * max(res.rms.max(), 1e-300))
-        res = solve_ls(Y, tau, names, weights=1.0 / sigma, tol=tol, warn=False)
+        res = solve_ls(Y, tau, names, weights=1.0 / sigma, tol=tol, warn=False, rows=rows)
     return res
 
 

@@ -225,7 +225,7 @@ def dead_band(data, residual: np.ndarray, share: float = DEADBAND_SHARE, alpha: 
         p = float(fdist.sf(F * 1.0, 1, max(n_eff - 5, 1.0)))
         if gain >= share and p < alpha and SAT_SHARE[0] <= c <= SAT_SHARE[1]:
             out.append({"test": "dead_band", "joint": j, "threshold": d, "torque_range": [-d, d],
-                        "variable": f"tau{j + 1} (dead band |tau| < {d:.3g})", "eta2": float(gain),
+                        "variable": f"tau[{j}] (dead band |tau| < {d:.3g})", "eta2": float(gain),
                         "saturation_share": c, "variance_explained": float(gain), "p": p})
     return out
 

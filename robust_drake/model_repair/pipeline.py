@@ -92,10 +92,14 @@ def plausibility(kind: str, params: dict, robot: str) -> str:
         return txt
     backlash = "" if hw.backlash_deg is None else f"(about {hw.backlash_deg:g} deg on the {motor}) "
     if kind in ("stribeck", "smooth_coulomb", "asymmetric_coulomb"):
-        return (f"low-velocity friction shape ({kind}); QDD motors with a single gear stage show "
-                "a smooth Coulomb transition and some breakaway; backlash "
-                + backlash
-                + "adds a torque dip at every reversal")
+        drive = getattr(hw, "drive", None) or "unknown"
+        txt = f"low-velocity friction shape ({kind}) of the {motor}"
+        if gear:
+            txt += (f" ({drive} drive, {hw.gear_ratio:g}:1 {hw.gearbox} stage: gear meshing gives a smooth "
+                    "Coulomb transition and some breakaway; backlash " + backlash + "adds a torque dip at every reversal)")
+        elif drive == "direct":
+            txt += " (direct drive: bearing friction only, no gear stage)"
+        return txt
     if kind == "presliding_friction":
         Fd, x0 = p.get("presliding_torque", np.nan), p.get("presliding_displacement", np.nan)
         txt = (f"presliding (Dahl) friction: {Fd:.3g} N m of the friction level builds up "
@@ -113,7 +117,10 @@ def plausibility(kind: str, params: dict, robot: str) -> str:
                 + ("" if abs(g) < 0.3 else "; NOTE: larger than a motor constant usually errs"))
     if kind == "time_delay":
         d = p.get("delay", np.nan)
-        return f"delay {d * 1e3:.3g} ms between recorded torque and motion (CAN bus / driver loop)" + (
+        bus = getattr(hw, "bus", None)
+        src = (f"{bus} bus / driver loop" + (f", declared latency {hw.bus_latency * 1e3:.3g} ms" if getattr(
+            hw, "bus_latency", None) else "")) if bus else "no bus or delay source in the robot's description"
+        return f"delay {d * 1e3:.3g} ms between recorded torque and motion ({src})" + (
             "" if 0 <= d < 0.05 else "; NOTE: unusual size or sign")
     if kind == "spring":
         return "joint-angle proportional torque: cables or a balancing spring"
@@ -353,17 +360,25 @@ def run_repair_demo(out_dir: str, kind: str = "stribeck", seed: int = 0, progres
     log(f"simulated experiment: hidden {truth['kind']} on joint {truth['joint']} {truth['parameters']}")
     opts = RepairOptions(robot=truth["robot"], **options)
     rep = run_repair([fit_csv], opts, validate_paths=[val_csv], out_dir=out_dir, progress=log)
-    rep["truth"] = {k: v for k, v in truth.items() if k in ("kind", "joint", "parameters", "robot")}
+    attach_truth(rep, {k: v for k, v in truth.items() if k in ("kind", "joint", "parameters", "robot", "friction")}, out_dir)
     fmt = lambda xs: "[" + ", ".join(f"{x:.4f}" for x in xs) + "]"  # noqa: E731
     log(f"validation RMS torque error [N m]: baseline {fmt(rep['baseline']['rms_validate'])} -> "
         f"repaired {fmt(rep['final']['rms_validate'])}")
     for e in rep["effects"]:
-        log(f"found {e['kind']} on joint {e['joint']}: "
+        where = "all joints" if e["joint"] is None else f"joint {e['joint']} ({rep['joint_names'][e['joint']]})"
+        log(f"found {e['kind']} on {where}: "
             + ", ".join(f"{k} = {v:.4g}" for k, v in e["parameters"].items() if isinstance(v, float)))
-    tmp_json = os.path.join(out_dir, ".report.json.tmp")
-    with open(tmp_json, "w") as fh:
-        json.dump(rep, fh, indent=2, default=_json_default)
-    os.replace(tmp_json, os.path.join(out_dir, "report.json"))  # never a half-written report
+    return rep
+
+
+def attach_truth(rep: dict, truth: dict, out_dir: str | None) -> dict:
+    """Simulated data: put what the simulator was given (``truth``: ``kind``, ``joint``,
+    ``parameters``, optionally ``friction`` = {"coulomb", "viscous"}) into the report as
+    ``rep["truth"]`` and rewrite report.json / report.md in ``out_dir`` (report.md then shows the
+    truth beside what was found, ``report._md_truth``)."""
+    rep["truth"] = truth
+    if out_dir is not None and os.path.isfile(os.path.join(out_dir, "report.json")):
+        write_report_files(rep, out_dir)
     return rep
 
 

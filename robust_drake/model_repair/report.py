@@ -387,8 +387,39 @@ def _md_replay_and_rest(rep: dict) -> list[str]:
     return L
 
 
+def _md_truth(rep: dict) -> list[str]:
+    """Simulated data (``rep["truth"]``: what the simulator was given): truth beside what was found."""
+    truth = rep.get("truth")
+    if not truth:
+        return []
+    L = ["", "## Truth (simulator input) beside what was found", "",
+         "| effect | joint | parameter | truth | found | error |", "|---|---|---|---|---|---|"]
+    hidden = [truth] if truth.get("kind") else []
+    for h in hidden:
+        f = next((e for e in rep["effects"] if e["kind"] == h["kind"] and e["joint"] == h["joint"]), None)
+        for k, v in h["parameters"].items():
+            got = None if f is None else f["parameters"].get(k)
+            err = (f"{(got - v) / v:+.1%}" if isinstance(got, (int, float)) and isinstance(v, (int, float)) and v
+                   else "")
+            L.append(f"| {h['kind']} | {_joint(rep, h['joint'])} | {k} | {_num(v, '.4g')} | "
+                     f"{'not found' if f is None else _num(got, '.4g')} | {err} |")
+    for e in rep["effects"]:
+        if not any(e["kind"] == h["kind"] and e["joint"] == h["joint"] for h in hidden):
+            L.append(f"| {e['kind']} | {_joint(rep, e['joint'])} | | absent from the simulator | found | spurious |")
+    fr, model = truth.get("friction"), (rep.get("model") or {}).get("friction")
+    if fr and model:
+        for key, name in (("coulomb", "fc"), ("viscous", "fv")):
+            for j, (v, got) in enumerate(zip(fr[key], model[key])):
+                err = f"{(got - v) / v:+.1%}" if v and got is not None else ""
+                L.append(f"| baseline friction | {_joint(rep, j)} | {name} ({key}) | {_num(v, '.4g')} | "
+                         f"{_num(got, '.4g')} | {err} |")
+    if not hidden:
+        L.append("| (none hidden) | | | | | |")
+    return L + [""]
+
+
 def render_markdown(rep: dict) -> str:
     """``report.md`` from the ``report.json`` dictionary (and nothing else)."""
-    L = (_md_header(rep) + _md_errors(rep) + _md_effects(rep) + _md_estimator(rep) + _md_nominal(rep)
+    L = (_md_header(rep) + _md_truth(rep) + _md_errors(rep) + _md_effects(rep) + _md_estimator(rep) + _md_nominal(rep)
          + _md_selection(rep) + _md_residual(rep) + _md_replay_and_rest(rep))
     return "\n".join(L) + "\n"

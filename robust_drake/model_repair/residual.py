@@ -41,11 +41,11 @@ REVERSAL_WINDOW = 0.1  # s
 def explanatory_variables(data: IdentData) -> dict[str, np.ndarray]:
     out = {}
     for i in range(data.n):
-        out[f"q{i + 1}"] = data.q[:, i]
-        out[f"qd{i + 1}"] = data.qd[:, i]
-        out[f"sign_qd{i + 1}"] = np.sign(data.qd[:, i])
-        out[f"qdd{i + 1}"] = data.qdd[:, i]
-        out[f"tau{i + 1}"] = data.tau[:, i]
+        out[f"q[{i}]"] = data.q[:, i]  # signals indexed from 0 like the joints
+        out[f"qd[{i}]"] = data.qd[:, i]
+        out[f"sign_qd[{i}]"] = np.sign(data.qd[:, i])
+        out[f"qdd[{i}]"] = data.qdd[:, i]
+        out[f"tau[{i}]"] = data.tau[:, i]
     out["t"] = data.t
     return out
 

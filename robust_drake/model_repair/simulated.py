@@ -339,7 +339,7 @@ def hidden_effect_case(kind, seed=0, out_dir=None, duration=12.0, rate_hz=250.0,
     only) or ``"periodic_disturbance"`` (outside the library: a 0.7 Hz time-periodic torque
     on joint 1). Fit and validation use different reference seeds (different motions).
     Returns (fit_csv, validate_csv, truth) with truth = {"kind", "joint", "parameters", "key",
-    "rtol", "robot"}.
+    "rtol", "robot", "friction": {"coulomb", "viscous"}} (the baseline friction given to the arm).
     """
     import tempfile
     out_dir = out_dir or tempfile.mkdtemp(prefix=f"hidden_{kind}_")
@@ -381,6 +381,10 @@ def hidden_effect_case(kind, seed=0, out_dir=None, duration=12.0, rate_hz=250.0,
         truth = {"kind": kind, "joint": case["joint"], "parameters": dict(case["parameters"]),
                  "key": case["key"], "rtol": case["rtol"]}
     truth["robot"] = robot  # the robot model to give the fitter (the true plant minus the effect)
+    import inspect
+
+    viscous = kw.get("viscous", inspect.signature(simulate_experiment).parameters["viscous"].default)
+    truth["friction"] = {"coulomb": [float(x) for x in kw["coulomb"]], "viscous": [float(x) for x in viscous]}
     paths = []
     for role, s in (("fit", seed), ("validate", seed + 1)):
         path = os.path.join(out_dir, f"{kind}_{role}.csv")

@@ -33,7 +33,8 @@ import numpy as np
 
 from robust_drake.errors import RobustDrakeError
 from robust_drake.model_repair import residual as R
-from robust_drake.identification.data import IdentData, frozen_joints, load, load_companion
+from robust_drake.identification.data import (IdentData, exclusion_messages, friction_exclusion, frozen_joints,
+                                              load, load_companion)
 from robust_drake.identification.fitting import ColumnCache, effect_label, fit_model, predict_tau
 from robust_drake.identification.least_squares import LSResult, load_regressor, solve_wls
 
@@ -93,23 +94,28 @@ def load_inputs(fit_paths, validate_paths, opts, log) -> Inputs:
     n = getattr(regressor, "n", None)
     if getattr(regressor, "plant", None) is not None:
         warn += IC.prismatic_warnings(regressor.plant)
-    data = load(fit_paths, robot=opts.robot, n_joints=n, torque=opts.torque, cutoff_hz=opts.cutoff_hz)
+    names = joint_names_of(regressor, n) if n is not None else None
+    data = load(fit_paths, robot=opts.robot, n_joints=n, torque=opts.torque, cutoff_hz=opts.cutoff_hz,
+                joint_names=names)
     notes = list(opts.notes)
     if validate_paths:
-        val = load(validate_paths, robot=opts.robot, n_joints=data.n, torque=opts.torque, cutoff_hz=opts.cutoff_hz)
+        val = load(validate_paths, robot=opts.robot, n_joints=data.n, torque=opts.torque, cutoff_hz=opts.cutoff_hz,
+                   joint_names=names)
         fit = data
     else:
         fit, val = split_tail(data)
         notes.append(f"no --validate given: the last {HOLDOUT_FRACTION:.0%} of every fit file is "
                      "held out (contiguous tail) as validation data")
     log(f"data: fit {fit.N} samples ({len(fit.sources)} files), validate {val.N} samples")
-    cf, cv = ColumnCache(fit, regressor), ColumnCache(val, regressor)
+    exclude = friction_exclusion(fit)  # stiction: those rows of the stuck joint's equation are left out
+    cf, cv = ColumnCache(fit, regressor, exclude=exclude), ColumnCache(val, regressor)
     _, budget_warning = IC.sample_budget(fit, cf.base.shape[2])
     if budget_warning:
         warn.append(budget_warning)
     units, unit_warnings = IC.torque_scale_check(fit, regressor)
     warn += unit_warnings
     names = joint_names_of(regressor, data.n)
+    warn += exclusion_messages(fit, exclude, names)
     frozen = frozen_joints(data)
     for j in frozen:
         warn.append(f"joint {j} ({names[j]}) moves within {data.position_counts[j]:.0f} encoder count(s) in "
@@ -136,7 +142,7 @@ class Baseline:
 def fit_baseline(inp: Inputs, opts, log) -> Baseline:
     if opts.weighted:  # two-step WLS on the baseline fixes the per-joint weights of the selection
         Y0, names0, _ = inp.cf.model([])
-        weights = 1.0 / np.maximum(solve_wls(Y0, inp.fit.tau, names0, warn=False).rms, 1e-12)
+        weights = 1.0 / np.maximum(solve_wls(Y0, inp.cf.data.tau, names0, warn=False, rows=inp.cf.rows).rms, 1e-12)
     else:
         weights = np.ones(inp.fit.n)
     base_fit, _ = fit_model(inp.cf, [], weights)
@@ -190,13 +196,13 @@ def choose_estimator(inp: Inputs, base: Baseline, opts, log) -> Estimator:
     zdata = load_companion(inp.fit_paths, inp.data, cutoff_hz=fz, torque=opts.torque)  # same rows as data
     if not inp.validate_paths:
         zdata = zdata.subset(~tail_mask(zdata))
-    cz = ColumnCache(zdata, inp.regressor)
+    cz = ColumnCache(zdata, inp.regressor, exclude=inp.cf.exclude)
     nf = n_effective(fit) / fit.N
     w = base.weights
     ls_k = base.fit
     iv_k, _ = IV.fit_model_iv(inp.cf, cz, [], w, nf)
     Yk, _, _ = inp.cf.model([])
-    test = IV.hausman(ls_k.theta, IV.ls_covariance(Yk, fit.tau, ls_k.theta, w, nf), iv_k.theta, iv_k.cov)
+    test = IV.hausman(ls_k.theta, IV.ls_covariance(Yk, inp.cf.data.tau, ls_k.theta, w, nf), iv_k.theta, iv_k.cov)
     report = {
         "method": "instrumental_variables" if test["significant"] else "least_squares",
         "rule": "Hausman test significant at 1 % and, with consistent fit + replay on, the IV "
@@ -460,10 +466,10 @@ def consistent_fits(inp: Inputs, base: Baseline, est: Estimator, sel: Selection,
     except RobustDrakeError as exc:
         inp.notes.append(f"physically consistent fit not available: {exc}")
         return Consistent()
-    r_cf = inp.fit.tau - predict_tau(inp.cf, sel.chosen, cons_final.theta)
+    r_cf = inp.cf.data.tau - predict_tau(inp.cf, sel.chosen, cons_final.theta)
     r_cv = inp.val.tau - predict_tau(inp.cv, sel.chosen, cons_final.theta)
     log(f"consistent ({cons_final.solver}): rms validate {np.round(rms(r_cv), 4)}")
-    return Consistent(cons_base, cons_final, {"rms_fit": rms(r_cf), "rms_validate": rms(r_cv), **cons_final.as_dict()})
+    return Consistent(cons_base, cons_final, {"rms_fit": inp.cf.rms(r_cf).tolist(), "rms_validate": rms(r_cv), **cons_final.as_dict()})
 
 
 def friction_of(theta, names, n):
