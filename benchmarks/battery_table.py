@@ -19,14 +19,14 @@ from robust_drake.model_repair import battery as B
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--arms", default=",".join(B.BATTERY_ARMS))
-    ap.add_argument("--cases", default=",".join(("none",) + B.LIBRARY_KINDS + B.OUTSIDE + B.ARTEFACTS))
+    ap.add_argument("--cases", default=None, help="comma-separated (default: battery.CASES of each arm)")
     ap.add_argument("--json", default=None, help="also write the rows here")
     ap.add_argument("--no-replay", action="store_true")
     a = ap.parse_args(argv)
     rows, t0 = [], time.perf_counter()
     out = tempfile.mkdtemp(prefix="battery_")
     for arm in a.arms.split(","):
-        for case in a.cases.split(","):
+        for case in (a.cases.split(",") if a.cases else B.CASES[arm]):
             try:
                 row = B.run_case(arm, case, f"{out}/{arm}/{case}", replay=not a.no_replay)
             except Exception as exc:  # a crash is a result of the battery too

@@ -15,7 +15,7 @@ validation on different motions). Every case is repaired once (module cache) and
   backlash -- generator side, :mod:`robust_drake.model_repair.backlash`): flagged as
   unexplained structure on its joint, nothing claimed with high confidence, no misattributed
   kind (``test_outside_library.MISATTRIBUTED``);
-- log artefacts on the ``battery.ARTEFACT_BASE`` case (jittered stamps, gaps, unequal file
+- log artefacts on the arm's ``battery.ARTEFACT_BASE`` case (jittered stamps, gaps, unequal file
   lengths, 1 kHz): the conditioning warning where there is one, the same effects claimed as on
   the clean 250 Hz log, the parameter within 10 % of the clean log's;
 - every case: never worse -- each joint's validation RMS after <= before x (1 + NEVER_WORSE_TOL)
@@ -38,13 +38,8 @@ from robust_drake.model_repair.stages import NEVER_WORSE_TOL
 pytest.importorskip("robust_drake.model_repair.pipeline")
 
 ALL = ("none",) + B.LIBRARY_KINDS + B.OUTSIDE + B.ARTEFACTS
-#: serial7 (7 joints, ~10 s a case) runs a subset to keep the battery within its CI budget
-CASES = {
-    "siciliano_2link": ALL,
-    "puma560_3link": ALL,
-    "serial7": ("none", "spring", "time_delay", "torque_scale", "periodic_fast", "dead_zone", "backlash",
-                "jitter", "gaps"),
-}
+#: per arm (serial7, 7 joints, runs a subset to keep the battery within its CI budget)
+CASES = B.CASES
 #: (arm, case, test) -> measured reason of a known failure (xfail, strict=False)
 KNOWN: dict = {}
 
@@ -70,6 +65,7 @@ def _params(cases, test):
                 continue
             reason = KNOWN.get((arm, c, test))
             marks = [pytest.mark.xfail(strict=False, reason=reason)] if reason else []
+            marks += [pytest.mark.slow] if arm == "serial7" else []  # 7 joints: 15-50 s a case
             out.append(pytest.param(arm, c, marks=marks, id=f"{arm}-{c}"))
     return out
 
@@ -202,7 +198,7 @@ ARTEFACT_WARNING = {"jitter": "scatter around a fixed rate", "gaps": "logging ga
 @pytest.mark.parametrize("arm,case", _params(B.ARTEFACTS, "artefact"))
 def test_log_artefact_warned_and_same_answer(arm, case, battery_dir):
     r = _row(arm, case, battery_dir)
-    clean = _row(arm, B.ARTEFACT_BASE, battery_dir)
+    clean = _row(arm, B.ARTEFACT_BASE[arm], battery_dir)
     if case in ARTEFACT_WARNING:
         assert any(ARTEFACT_WARNING[case] in w for w in r["warnings"]), r["warnings"]
     assert [(k, j) for k, j, _ in r["claimed"]] == [(k, j) for k, j, _ in clean["claimed"]], (r["labels"], clean["labels"])
