@@ -89,6 +89,11 @@ def generate_experiment(out_dir, duration=12.0, seeds=(0, 1)):
     return paths
 
 
+def circle_skip(duration) -> float:
+    """Seconds of the circle's approach left out of the metrics: 1 s, or a quarter of a shortened run."""
+    return 1.0 if duration is None else min(1.0, 0.25 * float(duration))
+
+
 def tracking_comparison(report, trajectories=("cpt", "circle"), duration=None, progress=None,
                         reference: bool = True) -> list[dict]:
     """SP1 on the true arm with the baseline-model and the repaired-model compensation, and (with
@@ -119,7 +124,7 @@ def tracking_comparison(report, trajectories=("cpt", "circle"), duration=None, p
             runs.append(("reference", exact_friction, []))
         for stage, ff, effects in runs:
             cfg = ClosedLoopConfig(robot="d2r2", controller="sp1", trajectory=traj,
-                                   metrics_skip=1.0 if traj == "circle" else 0.0,
+                                   metrics_skip=circle_skip(duration) if traj == "circle" else 0.0,
                                    effects=effects, feedforward=[ff], plant_friction=friction)
             res = simulate(cfg, duration)
             if res.diverged:
