@@ -225,12 +225,7 @@ def test_outside_effect_not_misattributed(robot, case, tmp_path_factory):
     assert not [e["label"] for e in rep["effects"] if e["kind"] in MISATTRIBUTED]
 
 
-@pytest.mark.parametrize("robot,case", _cases(
-    ["none"] + CASES,
-    {("serial7", c) for c in ("none", "periodic_fast", "periodic_slow", "drift")},
-    "serial7: the repair switches to instrumental variables, judged by the replay (BUILD_NOTES "
-    "'Repair pipeline'), and IV's equation error is 1-20 % above the least-squares baseline on "
-    "some joints (issue 13: the estimator switch is not yet held to the per-joint torque rule)"))
+@pytest.mark.parametrize("robot,case", _cases(["none"] + CASES, set(), ""))
 def test_never_worse(robot, case, tmp_path_factory):
     rep, _ = _repair(robot, case, tmp_path_factory)
     before, after = np.array(rep["baseline"]["rms_validate"]), np.array(rep["final"]["rms_validate"])

@@ -92,10 +92,12 @@ def plausibility(kind: str, params: dict, robot: str) -> str:
         return txt
     backlash = "" if hw.backlash_deg is None else f"(about {hw.backlash_deg:g} deg on the {motor}) "
     if kind in ("stribeck", "smooth_coulomb", "asymmetric_coulomb"):
-        return (f"low-velocity friction shape ({kind}); QDD motors with a single gear stage show "
-                "a smooth Coulomb transition and some breakaway; backlash "
-                + backlash
-                + "adds a torque dip at every reversal")
+        drive = {"qdd": "quasi-direct-drive", "direct": "direct-drive", "geared": "geared"}.get(hw.drive)
+        stage = f" with a {hw.gear_ratio:g}:1 {hw.gearbox} stage" if gear else ""
+        txt = f"low-velocity friction shape ({kind})"
+        if drive:
+            txt += f" of a {drive} joint ({motor}{stage}, robot description)"
+        return txt + ("" if hw.backlash_deg is None else f"; backlash {backlash}adds a torque dip at every reversal")
     if kind == "presliding_friction":
         Fd, x0 = p.get("presliding_torque", np.nan), p.get("presliding_displacement", np.nan)
         txt = (f"presliding (Dahl) friction: {Fd:.3g} N m of the friction level builds up "
@@ -113,8 +115,11 @@ def plausibility(kind: str, params: dict, robot: str) -> str:
                 + ("" if abs(g) < 0.3 else "; NOTE: larger than a motor constant usually errs"))
     if kind == "time_delay":
         d = p.get("delay", np.nan)
-        return f"delay {d * 1e3:.3g} ms between recorded torque and motion (CAN bus / driver loop)" + (
-            "" if 0 <= d < 0.05 else "; NOTE: unusual size or sign")
+        from robust_drake.model_repair.effects import delay_bound
+
+        bound, source = delay_bound(robot)
+        return f"delay {d * 1e3:.3g} ms between recorded torque and motion ({source})" + (
+            "" if bound is not None and 0 <= d <= bound else "; NOTE: no declared source or above its bound")
     if kind == "spring":
         return "joint-angle proportional torque: cables or a balancing spring"
     if kind == "position_dependent":
