@@ -454,7 +454,8 @@ def final_model(inp: Inputs, est: Estimator, sel: Selection, opts) -> Final:
             "parameters": _plain(params),
             "coefficients": [float(c) for c in coef], "standard_errors": [float(s) for s in se],
             "rms_validate_after": rms(rv),
-            "heldout_gain": step.gain, "source": "residual",
+            "heldout_gain": step.gain, "confirmation_gain": step.confirm_gain, "source": "residual",
+            "is_disturbance": bool(getattr(e, "is_disturbance", False)),
             "confidence": "high" if step.gain >= 0.25 and not R.analyse(inp.fit, fk.residual)["unexplained_structure"]
             else "moderate",
             "kept": True, "reason": "selected on held-out error; no joint validates worse than the baseline",
