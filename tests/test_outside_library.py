@@ -9,11 +9,9 @@ grows over the run. The battery runs ``repair`` (Python API) and asserts:
   - flagged: ``unexplained_structure`` with the right test (periodic / dead_band / drift) on the
     right joint (and the frequency within 2 %) in the final residual's ``where``, or in the
     baseline residual's diagnostics when an added effect absorbed it (serial7 drift);
-  - nothing claimed with high confidence, and no ``time_delay`` / ``position_dependent`` /
-    ``rotor_inertia`` / ``spring`` claimed at all (the measured A.0 dead-zone case stays xfail
-    until the selection offers the diagnostic kinds as candidates);
-  - never worse: final validation RMS <= baseline * 1.01 per joint (the measured serial7 cases
-    where the IV switch is judged by the replay stay xfail);
+  - nothing claimed with high confidence except the outside effect named by its own kind, and
+    no ``time_delay`` / ``position_dependent`` / ``rotor_inertia`` / ``spring`` claimed at all;
+  - never worse: final validation RMS <= baseline * 1.01 per joint (the IV switch included);
   - the no-effect case: nothing claimed, nothing flagged.
 The new kinds are fitted directly (baseline + the candidates the diagnostics propose) and their
 parameters recovered within stated tolerances. ~5 s per case (12 s runs at 250 Hz).
@@ -219,10 +217,7 @@ def _cases(cases, known_failures, reason):
     return out
 
 
-@pytest.mark.parametrize("robot,case", _cases(
-    CASES, {("dfki_double_pendulum_a0", "dead_zone")},
-    "the selection does not yet offer the diagnostic kinds as candidates (issue 13): the A.0 "
-    "dead-zone still draws a library kind that the never-worse guard keeps"))
+@pytest.mark.parametrize("robot,case", _cases(CASES, set(), ""))
 def test_outside_effect_not_misattributed(robot, case, tmp_path_factory):
     rep, _ = _repair(robot, case, tmp_path_factory)
     assert not [e["label"] for e in rep["effects"] if e["kind"] in MISATTRIBUTED]

@@ -292,8 +292,9 @@ class Effect:
     def admissible(self, parameters: dict, context: PhysicalContext | None = None) -> str:
         """'' if the fitted ``parameters`` are physically admissible, else the reason. The
         default checks :attr:`bounds`; kinds whose limit depends on the data or the rest of the
-        fit (friction levels, torque range, duration) extend it with ``context``."""
-        return check_bounds(parameters, self.bounds)
+        fit (friction levels, torque range, duration) extend it with ``context``. Shape
+        parameters count too."""
+        return check_bounds({**self.shape, **parameters}, self.bounds)
 
     # -- plant side ----------------------------------------------------------------------------
     def generalized_force(self, q, qd, tau, coef) -> np.ndarray:
@@ -1003,6 +1004,7 @@ class PeriodicDisturbanceEffect(TimeEffect):
     def admissible(self, parameters, context=None):
         """frequency in the analysis band (2 / T_file, f_c): below it a drift, above it filtered
         out; amplitude <= the largest torque the joint carried."""
+        parameters = {**self.shape, **parameters}
         why = check_bounds(parameters, self.bounds) or _limit_by(self, parameters, "amplitude", context,
                                                                  "tau_max", "max |tau|")
         if why or context is None or context.band_hz is None:
