@@ -839,7 +839,7 @@ class PreslidingFriction(Effect):
     only gradually after a reversal (presliding compliance of gear teeth / bearings, backlash
     being taken up). Dahl's model has F_d >= 0; the selection rejects a negative fit (a
     breakaway that decays after a reversal is the ``stribeck`` kind), see
-    ``selection.PLAUSIBLE``.
+    :attr:`bounds`.
 
     Columns: z integrated along each file's filtered positions (exact solution for a piecewise
     monotone sample path: z_{k+1} = s + (z_k - s) exp(-|dq|/x0), s = sign(dq)), starting at

@@ -126,6 +126,15 @@ def plausibility(kind: str, params: dict, robot: str) -> str:
         return "position-periodic torque: cogging / torque ripple of the motor"
     if kind == "payload":
         return "extra mass at the tool"
+    if kind == "periodic_disturbance":
+        return (f"DISTURBANCE, not a property of the arm: a torque periodic in time at "
+                f"{p.get('frequency', np.nan):.4g} Hz, amplitude {p.get('amplitude', np.nan):.3g} N m "
+                "(a pump, a vibrating base, a neighbouring machine)")
+    if kind == "dead_zone":
+        return (f"driver dead-zone: commanded torque below {p.get('threshold', np.nan):.3g} N m does not "
+                f"reach the joint (share lost {p.get('share', np.nan):.2f})")
+    if kind == "friction_drift":
+        return "friction changing over the run (warming up: lubricant, seals, brake)"
     return kind
 
 

@@ -39,7 +39,7 @@ import numpy as np
 from robust_drake.errors import RobustDrakeError
 from robust_drake.model_repair import residual as R
 from robust_drake.identification.data import IdentData, frozen_joints, load, load_companion
-from robust_drake.identification.fitting import ColumnCache, effect_label, fit_model, predict_tau
+from robust_drake.identification.fitting import ColumnCache, effect_label, fit_model, predict_tau  # noqa: F401
 from robust_drake.identification.least_squares import LSResult, load_regressor, solve_wls
 
 #: relative tolerance of the never-worse rule (validation RMS torque and replay RMS q, per joint)
