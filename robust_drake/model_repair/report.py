@@ -311,7 +311,8 @@ def _md_estimator(rep: dict) -> list[str]:
             "Baseline structure with the IV estimate (the estimator's share of the change): validate "
             + _nums(est["baseline_iv"]["rms_validate"]) + " N m. On a held-out "
             "tail of the *same* runs the IV torque error can be higher than LS's (LS is the best "
-            "equation-error predictor given equally noisy columns); the replay below judges the motion."]
+            "equation-error predictor given equally noisy columns); the never-worse rule holds the IV "
+            "switch to the same per-joint torque and replay limits as an effect."]
 
 
 def _md_nominal(rep: dict) -> list[str]:
