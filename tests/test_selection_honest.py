@@ -242,6 +242,9 @@ def test_time_delay_only_with_a_declared_physical_source():
     txt = plausibility("time_delay", {"delay": 0.003}, "d2r2") + plausibility("stribeck", {}, "d2r2")
     assert "CAN" not in txt and "QDD" not in txt and "quasi" not in txt and "direct-drive" in txt
     assert "CAN" in plausibility("time_delay", {"delay": 0.003}, "dfki_double_pendulum_c1")
+    dahl = {"presliding_torque": 0.08, "presliding_displacement": 0.03}
+    assert "gear" not in plausibility("presliding_friction", dahl, "d2r2")
+    assert "planetary" in plausibility("presliding_friction", dahl, "dfki_double_pendulum_c1")
 
 
 # ------------------------------------------------------------------------------ friction signs

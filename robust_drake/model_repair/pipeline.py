@@ -96,13 +96,15 @@ def plausibility(kind: str, params: dict, robot: str) -> str:
         stage = f" with a {hw.gear_ratio:g}:1 {hw.gearbox} stage" if gear else ""
         txt = f"low-velocity friction shape ({kind})"
         if drive:
-            txt += f" of a {drive} joint ({motor}{stage}, robot description)"
+            txt += f" of a {drive} joint ({hw.motor + stage + ', ' if hw.motor else ''}robot description)"
         return txt + ("" if hw.backlash_deg is None else f"; backlash {backlash}adds a torque dip at every reversal")
     if kind == "presliding_friction":
         Fd, x0 = p.get("presliding_torque", np.nan), p.get("presliding_displacement", np.nan)
         txt = (f"presliding (Dahl) friction: {Fd:.3g} N m of the friction level builds up "
                f"over ~{x0:.3g} rad ({np.degrees(x0):.2g} deg) of motion after "
-               "every reversal: compliance of gear teeth and bearings before gross sliding")
+               "every reversal: compliance of "
+               + ("gear teeth and bearings" if hw.geared else "bearings and the structure")
+               + " before gross sliding")
         if gear and hw.backlash_deg is not None:
             txt += (f" ({motor}: {hw.gear_ratio:g}:1 {hw.gearbox} stage, about {hw.backlash_deg:g} deg "
                     "backlash taken up at each reversal)")
