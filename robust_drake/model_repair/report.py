@@ -82,8 +82,11 @@ def verdict(res: RepairResult) -> dict:
     elif not tried and not res.guard.dropped:
         why = "nothing kept: no candidate passed the selection"
     else:
-        why = ("nothing kept: every effect tried made a joint's validation or the replay worse than the "
-               "baseline (see rejected_effects)")
+        what = " and ".join(w for w, k in (("every effect tried", tried),
+                                          ("the switch to instrumental variables",
+                                           any(d["kind"] == "estimator" for d in res.guard.dropped))) if k)
+        why = (f"nothing kept: {what or 'everything tried'} made a joint's validation or the replay worse "
+               "than the least-squares baseline (see rejected_effects)")
     if named:
         why += f"; named from the URDF comparison (not part of the fitted model): {', '.join(named)}"
     return {"verdict": "repaired" if kept else "no_improvement", "verdict_reason": why}
