@@ -82,15 +82,21 @@ def test_repair_names_and_recovers_hidden_effect(kind, tmp_path_factory):
 
 
 def test_effect_outside_library_is_flagged(tmp_path_factory):
-    """A time-periodic torque (0.7 Hz, 0.08 N m on joint 1): no library effect depends on time."""
+    """A time-periodic torque (0.7 Hz, 0.08 N m on joint 1): no library effect depends on time.
+    The baseline residual's periodic diagnostic fires on joint 1 at 0.7 Hz, which offers the
+    ``periodic_disturbance`` kind to the selection there (and only there): it is named, as a
+    disturbance, with its frequency and amplitude, and no library kind is claimed for it."""
     rep, truth = _run("periodic_disturbance", tmp_path_factory)
-    assert rep["unexplained_structure"] is True
-    assert all(e["confidence"] != "high" for e in rep["effects"]), rep["effects"]
-    # whatever was added does not explain the disturbance: joint 1 keeps most of its error
     j = truth["joint"]
-    assert rep["final"]["rms_validate"][j] > 0.5 * rep["baseline"]["rms_validate"][j]
-    # and the error left is of the disturbance's size (amplitude / sqrt 2 ~ 0.057 N m)
-    assert rep["final"]["rms_validate"][j] > 0.5 * truth["parameters"]["amplitude"] / math.sqrt(2)
+    diag = [d for d in rep["residual"]["baseline"]["diagnostics"] if d["test"] == "periodic" and d["joint"] == j]
+    assert diag and diag[0]["frequency_hz"] == pytest.approx(truth["parameters"]["frequency"], rel=0.02)
+    assert [(e["kind"], e["joint"]) for e in rep["effects"]] == [("periodic_disturbance", j)], rep["effects"]
+    (e,) = rep["effects"]
+    assert e["is_disturbance"] is True
+    assert e["parameters"]["frequency"] == pytest.approx(truth["parameters"]["frequency"], rel=0.01)
+    assert e["parameters"]["amplitude"] == pytest.approx(truth["parameters"]["amplitude"], rel=0.15)
+    # the disturbance keeps its phase to the logs' clocks here, so it predicts the validation run
+    assert rep["final"]["rms_validate"][j] < 0.5 * rep["baseline"]["rms_validate"][j]
 
 
 def test_payload_is_named_from_the_parameter_shift(tmp_path_factory):
@@ -145,9 +151,9 @@ def test_replay_through_augmented_plant_improves(kind, tmp_path_factory):
 def test_undeclared_sensor_vibration_is_caught_by_the_estimator_test(tmp_path_factory):
     """Errors in variables nobody declared: the plant is exact, but the *measured* positions carry
     a 5-8 Hz vibration (1 mrad RMS) the torque does not cause. Least squares on the differentiated
-    positions is attenuated; repair must detect it (Hausman + the fit-data replay), switch to
-    instrumental variables, land within 3 % of the true inertial parameters, claim no torque
-    effect for it, and replay the validation motion far better."""
+    positions is attenuated; repair detects it (Hausman + the fit-data replay), and the IV estimate
+    lands within 3 % of the true inertial parameters; no torque effect is claimed for it. The IV
+    switch is then held to the per-joint torque rule and dropped (see below)."""
     from robust_drake.identification.least_squares import load_regressor
     from robust_drake.model_repair.simulated import hidden_effect_case
 
@@ -155,14 +161,30 @@ def test_undeclared_sensor_vibration_is_caught_by_the_estimator_test(tmp_path_fa
     fit, val, truth = hidden_effect_case("sensor_vibration", seed=0, out_dir=str(out), vibration_rms=1e-3)
     rep = repair.run_repair([fit], repair.RepairOptions(robot=truth["robot"], plots=False), validate_paths=[val])
     est = rep["estimator"]
-    assert est["method"] == "instrumental_variables" and est["hausman"]["significant"]
+    assert est["hausman"]["significant"]
     assert est["replay_fit"]["ratio"] < 0.5
+    # IV's parameters are right, but with equally noisy validation columns its torque error is
+    # above LS's on joint 0 (measured +6.5 %): the switch is held to the per-joint never-worse
+    # rule like an effect (issue 13), dropped, and the report says so -- a known cost of the rule
+    # on errors-in-variables data (BUILD_NOTES, known limits)
+    iv_val, ls_val = est["baseline_iv"]["rms_validate"], rep["baseline"]["rms_validate"]
+    assert iv_val[0] > 1.01 * ls_val[0], (iv_val, ls_val)
+    assert est["method"] == "least_squares"
+    assert any(d["kind"] == "estimator" for d in rep["rejected_effects"])
+    assert rep["effects"] == [], [e["label"] for e in rep["effects"]]
+    assert all(a <= 1.01 * b for a, b in zip(rep["final"]["rms_validate"], ls_val))
+    # the IV estimate itself (before the rule dropped it) is within 3 % of the true parameters
+    from robust_drake.identification.data import load, load_companion
+    from robust_drake.identification.instruments import INSTRUMENT_RATIO, fit_model_iv
+    from robust_drake.model_repair.selection import ColumnCache
+
     reg = load_regressor(truth["robot"])
+    data = load([fit], robot=truth["robot"])
+    z = load_companion([fit], data, cutoff_hz=data.filter.cutoff_hz * INSTRUMENT_RATIO)
+    iv, _ = fit_model_iv(ColumnCache(data, reg), ColumnCache(z, reg), [], np.ones(data.n))
     th0 = reg.base_parameters()
     big = [k for k in range(len(th0)) if abs(th0[k]) > 0.02]  # first moments and link inertias
-    rel = lambda part: max(abs(rep[part]["parameters"][reg.base_names[k]] / th0[k] - 1) for k in big)  # noqa: E731
-    assert rel("final") < 0.03, rel("final")
-    assert rel("baseline") > 3 * rel("final"), (rel("baseline"), rel("final"))
-    assert rep["effects"] == [], [e["label"] for e in rep["effects"]]
-    rb, ra = rep["replay"]["before"]["rms_q"], rep["replay"]["after"]["rms_q"]
-    assert all(a < 0.5 * b for a, b in zip(ra, rb)), (rb, ra)
+    assert max(abs(iv.theta[k] / th0[k] - 1) for k in big) < 0.03
+    # and the LS baseline it keeps is the attenuated one
+    ls = [rep["baseline"]["parameters"][reg.base_names[k]] for k in big]
+    assert max(abs(v / th0[k] - 1) for v, k in zip(ls, big)) > 0.09

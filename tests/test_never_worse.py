@@ -51,11 +51,14 @@ def test_what_was_tried_is_reported_with_the_reason(repaired):
     # ... and every accepted effect the final model does not hold is listed as dropped, with why
     dropped = {d["label"]: d for d in rep["rejected_effects"]}
     kept = {e["label"] for e in rep["effects"] if e["source"] == "residual"}
-    assert set(accepted) - kept <= set(dropped) and dropped
+    # (the 3 Hz case: the periodic diagnostic offers periodic_disturbance on joint 1, which is
+    # kept; nothing to drop there)
+    assert set(accepted) - kept <= set(dropped)
     for d in dropped.values():
         assert d["kept"] is False and "worse" in d["reason"]
     assert rep["verdict"] == ("repaired" if kept else "no_improvement")
-    assert f"Verdict: {rep['verdict']}" in md and "dropped by the never-worse rule" in md
+    assert f"Verdict: {rep['verdict']}" in md
+    assert ("dropped by the never-worse rule" in md) == bool(dropped)
     for label in dropped:
         assert label in md
 
@@ -65,6 +68,7 @@ def test_markdown_and_json_agree_on_the_estimator(repaired):
     est = rep["estimator"]
     if est.get("hausman"):
         sig = est["hausman"]["significant"]
+        md = md.split("## Errors in variables")[1].split("\n## ")[0]  # the estimator's section
         assert ("**significant**" in md) == sig and ("**not significant**" in md) == (not sig)
         used = "instrumental variables" if est["method"] == "instrumental_variables" else "least squares"
         assert f"Estimator used: {used}" in md

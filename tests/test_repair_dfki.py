@@ -165,19 +165,20 @@ def test_same_command_runs_on_design_a0(tmp_path):
     # the baseline fits A.0 far better than a zero model: the residual is a fraction of the torque
     tau_max = rep["data"]["fit"]["tau_max"]
     assert all(r < 0.3 * t for r, t in zip(rep["baseline"]["rms_fit"], tau_max))
-    # A.0's encoder noise biases LS too; the IV model replays the held-out motion better (its
-    # torque error on the held-out tail of the *same* runs is not lower: with equally noisy
-    # columns there, the shrunken LS parameters are the better equation-error predictor, which is
-    # why the never-worse rule judges the IV switch by the replay)
-    assert rep["estimator"]["method"] == "instrumental_variables"
-    rb, ra = rep["replay"]["before"]["rms_q"], rep["replay"]["after"]["rms_q"]
-    assert all(a < b for a, b in zip(ra, rb)), (rb, ra)
-    # never worse: no kept effect makes a joint's torque error worse than the reference (here the
-    # IV baseline's, higher than LS's on both joints)
+    # A.0's encoder noise biases LS too (Hausman significant), but on the held-out tail of the
+    # same runs the IV model's torque error is higher than LS's on both joints (measured +10 % /
+    # +5 %: with equally noisy columns there, the shrunken LS parameters are the better
+    # equation-error predictor). The IV switch is held to the same per-joint never-worse rule as
+    # an effect (issue 13): it is tried, dropped, and the report says so.
+    assert rep["estimator"]["hausman"]["significant"]
+    iv_val, ls_val = rep["estimator"]["baseline_iv"]["rms_validate"], rep["baseline"]["rms_validate"]
+    assert all(i > 1.02 * b for i, b in zip(iv_val, ls_val)), (iv_val, ls_val)
+    assert rep["estimator"]["method"] == "least_squares"
+    assert [d["kind"] for d in rep["rejected_effects"]].count("estimator") == 1
+    # never worse against the least-squares baseline on every joint
     tol = rep["never_worse"]["tolerance"]
     ref = rep["never_worse"]["reference_rms_validate"]
-    assert ref == pytest.approx(np.maximum(rep["estimator"]["baseline_iv"]["rms_validate"],
-                                           rep["baseline"]["rms_validate"]))
+    assert ref == pytest.approx(rep["baseline"]["rms_validate"])
     assert all(a <= b * (1 + tol) for a, b in zip(rep["final"]["rms_validate"], ref))
 
 

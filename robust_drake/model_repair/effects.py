@@ -38,6 +38,7 @@ integrated with an error-controlled integrator.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, replace
 from typing import ClassVar
 
 import numpy as np
@@ -71,6 +72,94 @@ def _fmt(x):
     return f"{x:g}" if isinstance(x, (int, float)) else str(x)
 
 
+#: upper bound of a ``time_delay`` [s] when the robot description declares a bus but no
+#: ``bus_latency``: a few cycles of a 0.5-1 kHz driver loop on a field bus
+DEFAULT_BUS_DELAY = 0.02
+
+
+@dataclass(frozen=True)
+class PhysicalContext:
+    """What an admissibility rule may compare a fitted parameter with (:meth:`Effect.admissible`).
+
+    ``coulomb`` / ``viscous``: the same fit's Coulomb [N m] and viscous [N m s/rad] levels per
+    joint; ``tau_max``: max |tau_j| in the data [N m]; ``duration``: the longest run [s] (time
+    since the run's t = 0); ``band_hz``: (2 / T_file, f_c) [Hz], the band a periodic residual can
+    be told from a drift and is not removed by the filter; ``max_delay``: the delay bound [s] from
+    the robot description (None: the description declares no physical source of delay)."""
+
+    coulomb: tuple | None = None
+    viscous: tuple | None = None
+    tau_max: tuple | None = None
+    duration: float | None = None
+    band_hz: tuple | None = None
+    max_delay: float | None = None
+
+    @classmethod
+    def from_data(cls, data, robot=None) -> "PhysicalContext":
+        seg = np.asarray(getattr(data, "segment", np.zeros(len(data.t), int)))
+        t = np.asarray(data.t, float)
+        spans = [float(t[seg == s][-1] - t[seg == s][0]) for s in np.unique(seg)]
+        fc = getattr(getattr(data, "filter", None), "cutoff_hz", None)
+        band = (2.0 / max(np.median(spans), 1e-9), float(fc) if fc else 0.5 / float(data.dt))
+        return cls(tau_max=tuple(float(x) for x in np.max(np.abs(data.tau), axis=0)),
+                   duration=float(np.max(t) - min(0.0, float(np.min(t)))), band_hz=band,
+                   max_delay=delay_bound(robot)[0] if robot is not None else None)
+
+    def with_friction(self, theta, names) -> "PhysicalContext":
+        """This context with the Coulomb / viscous levels ``fc<j+1>`` / ``fv<j+1>`` of a fit."""
+        th = dict(zip(names, np.asarray(theta, float)))
+        n = sum(1 for k in th if k.startswith("fc"))
+        return replace(self, coulomb=tuple(float(th[f"fc{j + 1}"]) for j in range(n)),
+                       viscous=tuple(float(th[f"fv{j + 1}"]) for j in range(n)))
+
+
+def delay_bound(robot) -> tuple[float | None, str]:
+    """(bound [s], source text) of a ``time_delay`` from the robot description: a declared
+    ``bus_latency`` L gives 2 L (a command crosses the bus and the driver's loop); a declared
+    ``bus`` without latency :data:`DEFAULT_BUS_DELAY`; no bus: (None, why) -- a delay has no
+    physical source (e.g. a direct-drive arm with analog amplifiers) and is not offered."""
+    from robust_drake.description import describe
+
+    try:
+        hw = describe(robot)
+    except RobustDrakeError:
+        return None, "no robot description"
+    if hw.bus_latency is not None:
+        return 2.0 * float(hw.bus_latency), f"{hw.bus or 'bus'} latency {hw.bus_latency:g} s (robot description)"
+    if hw.bus:
+        return DEFAULT_BUS_DELAY, f"{hw.bus} bus (robot description)"
+    return None, f"the robot description ({hw.drive} drive) declares no bus or bus_latency"
+
+
+def check_bounds(parameters: dict, bounds: dict) -> str:
+    """'' if every named parameter (scalar or per-joint list) lies in its [lo, hi], else why."""
+    for name, (lo, hi) in bounds.items():
+        if name not in parameters:
+            continue
+        vals = np.atleast_1d(np.asarray(parameters[name], dtype=float))
+        if np.any(~np.isfinite(vals)) or np.any(vals < lo) or np.any(vals > hi):
+            return f"{name} = {np.round(vals, 4).tolist()} outside [{lo:g}, {hi:g}]"
+    return ""
+
+
+def _joint_values(effect, values, n: int) -> np.ndarray:
+    """A context's per-joint array restricted to the joints the effect acts on."""
+    return np.asarray(values, float)[effect.joints(n)]
+
+
+def _limit_by(effect, parameters: dict, name: str, context, attr: str, what: str, absolute: bool = True) -> str:
+    """|parameter| <= the context's per-joint ``attr`` (e.g. the torque range)."""
+    ref = getattr(context, attr, None) if context is not None else None
+    if ref is None or name not in parameters:
+        return ""
+    vals = np.atleast_1d(np.asarray(parameters[name], float))
+    lim = _joint_values(effect, ref, len(ref))
+    v = np.abs(vals) if absolute else vals
+    if np.any(v > lim + 1e-12):
+        return f"|{name}| = {np.round(np.abs(vals), 4).tolist()} above {what} {np.round(lim, 4).tolist()}"
+    return ""
+
+
 class Effect:
     """One candidate effect (kind + joint + fixed shape parameters).
 
@@ -88,6 +177,9 @@ class Effect:
     modifies_plant: ClassVar[bool] = False  # realised by apply_to_plant, block() is None
     shared: ClassVar[bool] = False  # joint=None -> one coefficient shared by all joints
     default_shape: ClassVar[dict] = {}
+    #: physically admissible range [lo, hi] of each named parameter (:meth:`parameters`), per
+    #: joint; a user-defined kind declares its own (and may override :meth:`admissible`)
+    bounds: ClassVar[dict] = {}
 
     def __init__(self, joint: int | None = None, **shape):
         unknown = set(shape) - set(self.default_shape)
@@ -197,6 +289,13 @@ class Effect:
     def _coef_one(self, p) -> list[float]:
         return [float(p[name]) for name in self.coef_names]
 
+    def admissible(self, parameters: dict, context: PhysicalContext | None = None) -> str:
+        """'' if the fitted ``parameters`` are physically admissible, else the reason. The
+        default checks :attr:`bounds`; kinds whose limit depends on the data or the rest of the
+        fit (friction levels, torque range, duration) extend it with ``context``. Shape
+        parameters count too."""
+        return check_bounds({**self.shape, **parameters}, self.bounds)
+
     # -- plant side ----------------------------------------------------------------------------
     def generalized_force(self, q, qd, tau, coef) -> np.ndarray:
         """What the block outputs for one state: -(columns @ coef), shape (n,)."""
@@ -249,6 +348,9 @@ class Stribeck(Effect):
 
     kind = "stribeck"
     coef_names = ("stribeck_torque",)
+    #: F_s >= F_c: the breakaway level is above the Coulomb level (a level *below* it at low
+    #: speed is not Stribeck friction)
+    bounds = {"stribeck_torque": (0.0, math.inf)}
     default_shape = {"stribeck_velocity": 0.1, "v_eps": V_EPS}
     shape_grid = [{"stribeck_velocity": v} for v in (0.05, 0.1, 0.2, 0.4)]
 
@@ -265,6 +367,8 @@ class SmoothCoulomb(Effect):
 
     kind = "smooth_coulomb"
     coef_names = ("coulomb",)
+    #: the gradually switching share of the Coulomb level is a friction level: >= 0
+    bounds = {"coulomb": (0.0, math.inf)}
     default_shape = {"transition_velocity": 0.3, "form": "tanh"}
     shape_grid = [{"transition_velocity": v} for v in (0.1, 0.3, 1.0)]
 
@@ -292,6 +396,10 @@ class AsymmetricCoulomb(Effect):
     def _features(self, j, q, qd, qdd, tau, taud):
         return np.abs(smooth_sign(qd[:, j], self.shape["v_eps"]))[:, None]
 
+    def admissible(self, parameters, context=None):
+        """Both directional levels F_c +- a non-negative: |a| <= F_c (the same fit's)."""
+        return _limit_by(self, parameters, "asymmetry", context, "coulomb", "the Coulomb level")
+
 
 class LoadDependentFriction(Effect):
     """Friction growing with the transmitted load (gear friction): ``mu |tau| sign(qd)``.
@@ -299,6 +407,9 @@ class LoadDependentFriction(Effect):
 
     kind = "load_dependent_friction"
     coef_names = ("load_coefficient",)
+    #: friction grows with the transmitted load (mu >= 0); mu > 1 would make the gear lose more
+    #: than it transmits
+    bounds = {"load_coefficient": (0.0, 1.0)}
     needs_tau = True
     default_shape = {"v_eps": V_EPS}
     shape_grid = [{}]
@@ -325,6 +436,10 @@ class PositionDependent(Effect):
         a, b = float(c[0]), float(c[1])
         return {"amplitude": math.hypot(a, b), "phase": math.atan2(b, a), "sin": a, "cos": b}
 
+    def admissible(self, parameters, context=None):
+        """Cogging / ripple amplitude <= the largest torque the joint carried in the data."""
+        return _limit_by(self, parameters, "amplitude", context, "tau_max", "max |tau|")
+
     def _coef_one(self, p):
         if "sin" in p and "cos" in p:
             return [float(p["sin"]), float(p["cos"])]
@@ -342,6 +457,10 @@ class TorqueOffset(Effect):
     def _features(self, j, q, qd, qdd, tau, taud):
         return np.ones((q.shape[0], 1))
 
+    def admissible(self, parameters, context=None):
+        """Either sign; |offset| <= the largest torque the joint carried in the data."""
+        return _limit_by(self, parameters, "offset", context, "tau_max", "max |tau|")
+
 
 class TorqueScale(Effect):
     """Motor-constant error: the joint receives ``(1 + gain_error) tau`` for a commanded tau.
@@ -355,6 +474,9 @@ class TorqueScale(Effect):
 
     kind = "torque_scale"
     coef_names = ("gain_error",)
+    #: a motor constant wrong by more than 50 %, or -> -1 (the trivial "model = 0" solution of an
+    #: errors-in-variables column), is no motor-constant error
+    bounds = {"gain_error": (-0.5, 0.5)}
     needs_tau = True
     shape_grid = [{}]
 
@@ -376,6 +498,7 @@ class RotorInertia(Effect):
 
     kind = "rotor_inertia"
     coef_names = ("reflected_inertia",)
+    bounds = {"reflected_inertia": (0.0, math.inf)}  # an inertia is >= 0
     needs_qdd = True
     modifies_plant = True
     shape_grid = [{}]
@@ -433,6 +556,8 @@ class Spring(Effect):
 
     kind = "spring"
     coef_names = ("stiffness",)
+    #: a passive spring restores (k >= 0); a negative stiffness would feed energy in
+    bounds = {"stiffness": (0.0, math.inf)}
     shape_grid = [{}]
 
     def _features(self, j, q, qd, qdd, tau, taud):
@@ -450,6 +575,7 @@ class TimeDelay(Effect):
     shared = True
     uses_taud = True
     shape_grid = [{}]
+    bounds = {"delay": (0.0, math.inf)}  # causal
 
     def _features(self, j, q, qd, qdd, tau, taud):
         if taud is None:
@@ -457,8 +583,22 @@ class TimeDelay(Effect):
         return taud[:, j:j + 1]
 
     @classmethod
-    def candidates(cls, n_joints, **context):
+    def candidates(cls, n_joints, robot=None, **context):
+        """Offered only when the robot description declares a physical source (:func:`delay_bound`):
+        the column d tau/dt correlates with any residual that leads the torque, and would absorb
+        it as a 'delay' on an arm that has none."""
+        if robot is None or delay_bound(robot)[0] is None:
+            return []
         return [cls(joint=None)] + [cls(joint=j) for j in range(n_joints)]
+
+    def admissible(self, parameters, context=None):
+        """0 <= d <= the description's bound (``context.max_delay``; None: no source, rejected)."""
+        why = check_bounds(parameters, self.bounds)
+        if why or context is None:
+            return why
+        if context.max_delay is None:
+            return "no physical source of a delay in the robot description (bus / bus_latency)"
+        return check_bounds(parameters, {"delay": (0.0, context.max_delay)})
 
     def block(self, n, parameters, sample_period=None, **kw):
         d = parameters["delay"]
@@ -533,6 +673,7 @@ class Payload(Effect):
     prior / nominal rigid-body model."""
 
     kind = "payload"
+    bounds = {"mass": (0.0, math.inf)}
     coef_names = ("mass",)
     modifies_plant = True
     needs_qdd = True
@@ -698,7 +839,7 @@ class PreslidingFriction(Effect):
     only gradually after a reversal (presliding compliance of gear teeth / bearings, backlash
     being taken up). Dahl's model has F_d >= 0; the selection rejects a negative fit (a
     breakaway that decays after a reversal is the ``stribeck`` kind), see
-    ``selection.PLAUSIBLE``.
+    :attr:`bounds`.
 
     Columns: z integrated along each file's filtered positions (exact solution for a piecewise
     monotone sample path: z_{k+1} = s + (z_k - s) exp(-|dq|/x0), s = sign(dq)), starting at
@@ -708,6 +849,9 @@ class PreslidingFriction(Effect):
 
     kind = "presliding_friction"
     coef_names = ("presliding_torque",)
+    #: Dahl's model has F_d >= 0 (a level higher just after a reversal that decays is a
+    #: breakaway: the ``stribeck`` kind); x0 > 0
+    bounds = {"presliding_torque": (0.0, math.inf), "presliding_displacement": (1e-12, math.inf)}
     default_shape = {"presliding_displacement": 0.01}
     shape_grid = [{"presliding_displacement": x} for x in (0.003, 0.01, 0.03)]
 
@@ -855,6 +999,18 @@ class PeriodicDisturbanceEffect(TimeEffect):
     coef_names = ("sin", "cos")
     default_shape = {"frequency": 1.0}
     is_disturbance = True
+    bounds = {"frequency": (1e-12, math.inf)}
+
+    def admissible(self, parameters, context=None):
+        """frequency in the analysis band (2 / T_file, f_c): below it a drift, above it filtered
+        out; amplitude <= the largest torque the joint carried."""
+        parameters = {**self.shape, **parameters}
+        why = check_bounds(parameters, self.bounds) or _limit_by(self, parameters, "amplitude", context,
+                                                                 "tau_max", "max |tau|")
+        if why or context is None or context.band_hz is None:
+            return why
+        lo, hi = context.band_hz
+        return check_bounds(parameters, {"frequency": (lo, hi)})
 
     def _features_t(self, j, t, q, qd, tau):
         ph = 2.0 * math.pi * float(self.shape["frequency"]) * t
@@ -893,6 +1049,8 @@ class DeadZone(Effect):
     needs_tau = True
     default_shape = {"threshold": 0.1}
     limits = {"share": (0.5, 1.5)}
+    #: c ~ 1 for a dead-zone (the torque below d is lost); d > 0
+    bounds = {"share": limits["share"], "threshold": (1e-12, math.inf)}
 
     def _features(self, j, q, qd, qdd, tau, taud):
         d = float(self.shape["threshold"])
@@ -928,6 +1086,19 @@ class FrictionDrift(TimeEffect):
     coef_names = ("viscous_rate", "coulomb_rate")
     default_shape = {"v_eps": V_EPS}
 
+    def admissible(self, parameters, context=None):
+        """Viscous and Coulomb levels non-negative at the end of the run: b_0 + r_b T >= 0,
+        F_c0 + r_c T >= 0 (b_0, F_c0 the same fit's, T ``context.duration``)."""
+        if context is None or context.viscous is None or context.duration is None:
+            return ""
+        n = len(context.viscous)
+        for key, rate in (("viscous", "viscous_rate"), ("coulomb", "coulomb_rate")):
+            base = _joint_values(self, getattr(context, key), n)
+            end = base + np.atleast_1d(np.asarray(parameters[rate], float)) * context.duration
+            if np.any(end < 0):
+                return f"{key} coefficient {np.round(end, 4).tolist()} < 0 at the end of the run"
+        return ""
+
     def _features_t(self, j, t, q, qd, tau):
         v = qd[:, j]
         return np.column_stack([t * v, t * smooth_sign(v, self.shape["v_eps"])])
@@ -940,25 +1111,16 @@ class FrictionDrift(TimeEffect):
 
 def admissible(effect, parameters: dict, baseline: dict | None = None, duration: float | None = None,
                band_hz: tuple | None = None) -> str:
-    """Physical admissibility of the new kinds' parameters: '' if admissible, else the reason.
-
-    ``dead_zone``: share in [0.5, 1.5]. ``periodic_disturbance``: frequency in ``band_hz``
-    (2 / T_file, cut-off) when given. ``friction_drift``: with ``baseline`` = {"viscous": b_0,
-    "coulomb": F_c0} and ``duration`` T [s], b_0 + r_b T >= 0 and F_c0 + r_c T >= 0."""
-    p = parameters
-    if effect.kind == "dead_zone":
-        lo, hi = DeadZone.limits["share"]
-        c = float(np.ravel(p["share"])[0])
-        return "" if lo <= c <= hi else f"share = {c:.3g} outside [{lo}, {hi}]"
-    if effect.kind == "periodic_disturbance" and band_hz is not None:
-        f = float(effect.shape["frequency"])
-        return "" if band_hz[0] <= f <= band_hz[1] else f"frequency {f:.3g} Hz outside {band_hz}"
-    if effect.kind == "friction_drift" and baseline is not None and duration is not None:
-        for key, rate in (("viscous", "viscous_rate"), ("coulomb", "coulomb_rate")):
-            end = float(baseline[key]) + float(np.ravel(p[rate])[0]) * duration
-            if end < 0:
-                return f"{key} coefficient {end:.3g} < 0 at the end of the run"
-    return ""
+    """Compatibility wrapper of :meth:`Effect.admissible` for one joint's fit: ``baseline`` =
+    {"viscous": b_0, "coulomb": F_c0} of the effect's joint, ``duration`` T [s], ``band_hz``."""
+    ctx = None
+    if baseline is not None or duration is not None or band_hz is not None:
+        n = (effect.joint or 0) + 1
+        pad = lambda v: None if v is None else tuple([float(v)] * n)  # noqa: E731
+        ctx = PhysicalContext(coulomb=pad(None if baseline is None else baseline["coulomb"]),
+                              viscous=pad(None if baseline is None else baseline["viscous"]),
+                              duration=duration, band_hz=band_hz)
+    return effect.admissible(parameters, ctx)
 
 
 # ---------------------------------------------------------------------------------------------

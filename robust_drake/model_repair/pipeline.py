@@ -92,19 +92,19 @@ def plausibility(kind: str, params: dict, robot: str) -> str:
         return txt
     backlash = "" if hw.backlash_deg is None else f"(about {hw.backlash_deg:g} deg on the {motor}) "
     if kind in ("stribeck", "smooth_coulomb", "asymmetric_coulomb"):
-        drive = getattr(hw, "drive", None) or "unknown"
-        txt = f"low-velocity friction shape ({kind}) of the {motor}"
-        if gear:
-            txt += (f" ({drive} drive, {hw.gear_ratio:g}:1 {hw.gearbox} stage: gear meshing gives a smooth "
-                    "Coulomb transition and some breakaway; backlash " + backlash + "adds a torque dip at every reversal)")
-        elif drive == "direct":
-            txt += " (direct drive: bearing friction only, no gear stage)"
-        return txt
+        drive = {"qdd": "quasi-direct-drive", "direct": "direct-drive", "geared": "geared"}.get(hw.drive)
+        stage = f" with a {hw.gear_ratio:g}:1 {hw.gearbox} stage" if gear else ""
+        txt = f"low-velocity friction shape ({kind})"
+        if drive:
+            txt += f" of a {drive} joint ({hw.motor + stage + ', ' if hw.motor else ''}robot description)"
+        return txt + ("" if hw.backlash_deg is None else f"; backlash {backlash}adds a torque dip at every reversal")
     if kind == "presliding_friction":
         Fd, x0 = p.get("presliding_torque", np.nan), p.get("presliding_displacement", np.nan)
         txt = (f"presliding (Dahl) friction: {Fd:.3g} N m of the friction level builds up "
                f"over ~{x0:.3g} rad ({np.degrees(x0):.2g} deg) of motion after "
-               "every reversal: compliance of gear teeth and bearings before gross sliding")
+               "every reversal: compliance of "
+               + ("gear teeth and bearings" if hw.geared else "bearings and the structure")
+               + " before gross sliding")
         if gear and hw.backlash_deg is not None:
             txt += (f" ({motor}: {hw.gear_ratio:g}:1 {hw.gearbox} stage, about {hw.backlash_deg:g} deg "
                     "backlash taken up at each reversal)")
@@ -117,17 +117,26 @@ def plausibility(kind: str, params: dict, robot: str) -> str:
                 + ("" if abs(g) < 0.3 else "; NOTE: larger than a motor constant usually errs"))
     if kind == "time_delay":
         d = p.get("delay", np.nan)
-        bus = getattr(hw, "bus", None)
-        src = (f"{bus} bus / driver loop" + (f", declared latency {hw.bus_latency * 1e3:.3g} ms" if getattr(
-            hw, "bus_latency", None) else "")) if bus else "no bus or delay source in the robot's description"
-        return f"delay {d * 1e3:.3g} ms between recorded torque and motion ({src})" + (
-            "" if 0 <= d < 0.05 else "; NOTE: unusual size or sign")
+        from robust_drake.model_repair.effects import delay_bound
+
+        bound, source = delay_bound(robot)
+        return f"delay {d * 1e3:.3g} ms between recorded torque and motion ({source})" + (
+            "" if bound is not None and 0 <= d <= bound else "; NOTE: no declared source or above its bound")
     if kind == "spring":
         return "joint-angle proportional torque: cables or a balancing spring"
     if kind == "position_dependent":
         return "position-periodic torque: cogging / torque ripple of the motor"
     if kind == "payload":
         return "extra mass at the tool"
+    if kind == "periodic_disturbance":
+        return (f"DISTURBANCE, not a property of the arm: a torque periodic in time at "
+                f"{p.get('frequency', np.nan):.4g} Hz, amplitude {p.get('amplitude', np.nan):.3g} N m "
+                "(a pump, a vibrating base, a neighbouring machine)")
+    if kind == "dead_zone":
+        return (f"driver dead-zone: commanded torque below {p.get('threshold', np.nan):.3g} N m does not "
+                f"reach the joint (share lost {p.get('share', np.nan):.2f})")
+    if kind == "friction_drift":
+        return "friction changing over the run (warming up: lubricant, seals, brake)"
     return kind
 
 

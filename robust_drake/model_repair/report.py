@@ -82,8 +82,11 @@ def verdict(res: RepairResult) -> dict:
     elif not tried and not res.guard.dropped:
         why = "nothing kept: no candidate passed the selection"
     else:
-        why = ("nothing kept: every effect tried made a joint's validation or the replay worse than the "
-               "baseline (see rejected_effects)")
+        what = " and ".join(w for w, k in (("every effect tried", tried),
+                                          ("the switch to instrumental variables",
+                                           any(d["kind"] == "estimator" for d in res.guard.dropped))) if k)
+        why = (f"nothing kept: {what or 'everything tried'} made a joint's validation or the replay worse "
+               "than the least-squares baseline (see rejected_effects)")
     if named:
         why += f"; named from the URDF comparison (not part of the fitted model): {', '.join(named)}"
     return {"verdict": "repaired" if kept else "no_improvement", "verdict_reason": why}
@@ -112,11 +115,10 @@ def build_report(res: RepairResult) -> dict:
                   "standard_errors": fin.fit.as_dict()["standard_errors"]},
         **verdict(res),
         "never_worse": {"tolerance": res.guard.tolerance, "attempts": res.guard.attempts,
-                        "rule": "an effect is kept only if no joint's validation RMS torque error exceeds the "
-                                "baseline's (with IV: the larger of the LS and IV baselines') by more than the "
-                                "tolerance (relative); the model "
-                                "(effects and the IV switch) only if no joint's replay RMS position error on the "
-                                "validation data exceeds the least-squares baseline's by more than the tolerance",
+                        "rule": "the model (its effects and the IV switch) is kept only if no joint's validation "
+                                "RMS torque error exceeds the least-squares baseline's by more than the tolerance "
+                                "(relative), and no joint's replay RMS position error on the validation data "
+                                "exceeds the least-squares baseline's replay by more than the tolerance",
                         "reference_rms_validate": list(_reference(res))},
         "unexplained_structure": bool(final_ana["unexplained_structure"]),
         "nominal": res.nominal,
@@ -128,8 +130,12 @@ def build_report(res: RepairResult) -> dict:
                             "unidentifiable": unident, "unidentifiable_joints": inp.frozen},
         "units": inp.units,
         "selection": {"steps": [s.as_dict() for s in sel.steps], "min_gain": res.opts.min_gain,
-                      "candidates": len(sel.candidates), "last_ranking": sel.ranking[:12],
-                      "rule": "blocked 4-fold held-out error, gain >= min_gain and BIC (N_eff) decreasing"},
+                      "candidates": len(sel.candidates), "last_ranking": sel.ranking[:12], "rows": sel.rows,
+                      "rule": "blocked 4-fold held-out error with a gap (filter settling + residual correlation "
+                              "time) on the search rows ranks the candidates (winner's gain >= min_gain / 2); the "
+                              "winner is accepted if it lowers the error on a held-out tail of every segment "
+                              "the search never saw by >= min_gain; every "
+                              "kind's parameters physically admissible"},
         "residual": {"baseline": base.analysis, "final": final_ana,
                      "final_validate": R.analyse(inp.val, fin.val_residual)},
         "data": {"fit": inp.fit.summary(), "validate": inp.val.summary(),
@@ -308,7 +314,8 @@ def _md_estimator(rep: dict) -> list[str]:
             "Baseline structure with the IV estimate (the estimator's share of the change): validate "
             + _nums(est["baseline_iv"]["rms_validate"]) + " N m. On a held-out "
             "tail of the *same* runs the IV torque error can be higher than LS's (LS is the best "
-            "equation-error predictor given equally noisy columns); the replay below judges the motion."]
+            "equation-error predictor given equally noisy columns); the never-worse rule holds the IV "
+            "switch to the same per-joint torque and replay limits as an effect."]
 
 
 def _md_nominal(rep: dict) -> list[str]:
@@ -335,11 +342,11 @@ def _md_nominal(rep: dict) -> list[str]:
 
 def _md_selection(rep: dict) -> list[str]:
     L = ["", "## Selection steps", "",
-         "| step | best candidate | held-out score before -> after | BIC before -> after | decision |",
+         "| step | best candidate | held-out score before -> after | confirmation block before -> after | decision |",
          "|---|---|---|---|---|"]
     for s in rep["selection"]["steps"]:
         L.append(f"| {s['step']} | {s['label']} | {_num(s['score_before'], '.4f')} -> {_num(s['score_after'], '.4f')} | "
-                 f"{_num(s['bic_before'], '.1f')} -> {_num(s['bic_after'], '.1f')} | "
+                 f"{_num(s.get('confirm_before'), '.4f')} -> {_num(s.get('confirm_after'), '.4f')} | "
                  f"{'added' if s['accepted'] else 'stop'}: {s['reason']} |")
     sel = rep["selection"]
     return L + ["", f"Rule: {sel['rule']}; min gain {_num(sel['min_gain'], '.0%')}; {sel['candidates']} candidates. "

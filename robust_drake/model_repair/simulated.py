@@ -301,7 +301,9 @@ HIDDEN_CASES: dict[str, dict] = {
                      key="stribeck_torque", rtol=0.3),
     "smooth_coulomb": dict(joint=0, parameters={"coulomb": 0.12, "transition_velocity": 0.3},
                            key="coulomb", rtol=0.3),
-    "asymmetric_coulomb": dict(joint=1, parameters={"asymmetry": 0.04}, key="asymmetry", rtol=0.3),
+    # both directional levels F_c +- a >= 0 (a physical asymmetry): Coulomb 0.05 on joint 1 here
+    "asymmetric_coulomb": dict(joint=1, parameters={"asymmetry": 0.04}, key="asymmetry", rtol=0.3,
+                               coulomb=(0.02, 0.05)),
     "load_dependent_friction": dict(joint=0, parameters={"load_coefficient": 0.1},
                                     key="load_coefficient", rtol=0.3),
     "position_dependent": dict(joint=1, parameters={"amplitude": 0.06, "phase": 0.5, "harmonic": 4},
@@ -350,7 +352,7 @@ def hidden_effect_case(kind, seed=0, out_dir=None, duration=12.0, rate_hz=250.0,
     # cannot represent; the selection then (correctly) finds low-velocity friction structure
     # even with no hidden effect. Measured on 12 s runs: Fc = (0.08, 0.05) N m -> smooth_coulomb
     # and two stribeck terms chosen for the "none" case; Fc = (0.02, 0.01) -> nothing chosen.
-    kw.setdefault("coulomb", (0.02, 0.01))
+    kw.setdefault("coulomb", HIDDEN_CASES.get(kind, {}).get("coulomb", (0.02, 0.01)))
     extra, effects = (), []
     if kind == "rotor_inertia" and robot == DEFAULT_ROBOT:
         # the shipped C.1 URDF already declares the motors' reflected inertia, which the

@@ -10,19 +10,24 @@ Each stage takes and returns small dataclasses. The estimator travels in one typ
 Never worse (:func:`never_worse`, :func:`replay_guard`), tolerance ``NEVER_WORSE_TOL`` (relative,
 per joint):
 
-* an effect is kept only if the final model's validation RMS torque error is not above the
-  baseline's on ANY joint (with IV: not above the larger of the LS and IV baselines', see
-  :func:`reference_rms`), and
-* the final model (effects and estimator) is kept only if its replay RMS position error on the
-  validation data is not above the least-squares baseline's replay on any joint.
+* the final model (its effects AND the estimator switch) is kept only if its validation RMS
+  torque error is not above the least-squares baseline's on ANY joint (:func:`reference_rms`),
+  and
+* only if its replay RMS position error on the validation data is not above the least-squares
+  baseline's replay on any joint.
 
-Otherwise the worst offender is dropped and the model refitted, until the rule holds (at the
-latest with the least-squares baseline itself). The switch to instrumental variables is judged
-by the replay, not by the torque error: with errors in the variables the validation data's
-regressor is as noisy as the fit data's, and the attenuated LS parameters are the better
-*equation-error* predictor there even when they are wrong (measured: tests/test_hidden_effects.py's
-sensor-vibration arm, IV parameters within 3 % of the truth and the replay 4-14x better, yet
-the validation torque error +6.5 % on joint 0; DFKI A.0 +10 %/+5 % with the replay better).
+Otherwise the offender whose removal leaves the smallest worst-joint ratio (an effect, or the IV
+switch) is dropped and the model refitted, until the rule holds (at the latest with the
+least-squares baseline itself). The IV switch is held to the torque rule like an effect (issue
+13): with errors in the variables the validation data's regressor is as noisy as the fit data's,
+so the attenuated LS parameters can be the better *equation-error* predictor there even when they
+are wrong (tests/test_hidden_effects.py's sensor-vibration arm: IV within 3 % of the truth, the
+replay 4-14x better, the validation torque error +6.5 % on joint 0); the report then says that IV
+was tried and why it was dropped (``rejected_effects``, kind ``estimator``).
+
+Friction signs: every fitted model (baseline and final, :func:`fit_friction_bounded`) has Coulomb
+and viscous levels >= 0; a level the free fit puts below 0 is fixed at 0 and the rest refitted
+(active set, repeated until none is negative), and a warning names it.
 """
 
 from __future__ import annotations
@@ -35,7 +40,7 @@ from robust_drake.errors import RobustDrakeError
 from robust_drake.model_repair import residual as R
 from robust_drake.identification.data import (IdentData, exclusion_messages, friction_exclusion, frozen_joints,
                                               load, load_companion)
-from robust_drake.identification.fitting import ColumnCache, effect_label, fit_model, predict_tau
+from robust_drake.identification.fitting import ColumnCache, effect_label, fit_model, predict_tau  # noqa: F401
 from robust_drake.identification.least_squares import LSResult, load_regressor, solve_wls
 
 #: relative tolerance of the never-worse rule (validation RMS torque and replay RMS q, per joint)
@@ -139,16 +144,78 @@ class Baseline:
         return rms(self.val_residual)
 
 
+#: names of the baseline's friction levels that must be >= 0 (``fc<j>`` Coulomb, ``fv<j>`` viscous)
+def _friction_level(name: str) -> bool:
+    return name[:2] in ("fc", "fv") and name[2:].isdigit()
+
+
+def fit_friction_bounded(cache: ColumnCache, effects, weights, icache: ColumnCache | None = None,
+                         nf: float = 1.0) -> tuple[LSResult, list[slice], dict]:
+    """LS (or, with instrument columns ``icache``, IV) fit of baseline + ``effects`` with every
+    Coulomb / viscous level >= 0: levels the free fit puts below 0 are fixed at 0 and the other
+    parameters refitted with the same estimator, repeated until none is negative (an active-set
+    bounded fit that keeps the estimator's rank handling and covariance). Returns (fit, slices,
+    {name of a level fixed at 0: its value in the fit before it was fixed}); the fixed levels get
+    standard error 0."""
+    import dataclasses
+
+    from robust_drake.identification.instruments import solve_iv
+    from robust_drake.identification.least_squares import solve_ls
+
+    Y, names, slices = cache.model(effects)
+    Z = None if icache is None else icache.model(effects)[0]
+    tau = cache.data.tau
+    fixed: list[int] = []
+    free: dict = {}
+    while True:
+        keep = [k for k in range(len(names)) if k not in fixed]
+        nk = [names[k] for k in keep]
+        if Z is None:
+            sub = solve_ls(Y[:, :, keep], tau, nk, weights=weights, warn=not fixed)
+        else:
+            sub = solve_iv(Y[:, :, keep], Z[:, :, keep], tau, nk, weights, nf)
+        neg = [keep[i] for i, nm in enumerate(nk) if _friction_level(nm) and sub.theta[i] < 0]
+        if not neg:
+            break
+        free.update({names[k]: float(sub.theta[keep.index(k)]) for k in neg})
+        fixed += neg
+    p = len(names)
+    theta, se = np.zeros(p), np.zeros(p)
+    theta[keep], se[keep] = sub.theta, sub.se
+    cov = None
+    if sub.cov is not None:
+        cov = np.zeros((p, p))
+        cov[np.ix_(keep, keep)] = sub.cov
+    res = dataclasses.replace(sub, theta=theta, se=se, cov=cov, names=list(names))
+    res.residual = tau - predict_tau(cache, effects, theta)
+    res.rms = np.sqrt(np.mean(res.residual**2, axis=0))
+    return res, slices, free
+
+
+def friction_warnings(clamped: dict, joint_names, what: str) -> list[str]:
+    """One warning per friction level fixed at 0 (:func:`fit_friction_bounded`)."""
+    th = clamped
+    out = []
+    for nm in clamped:
+        j = int(nm[2:]) - 1
+        kind, unit = ("Coulomb", "N m") if nm.startswith("fc") else ("viscous", "N m s/rad")
+        out.append(f"{what}: the free fit gives joint {j} ({joint_names[j]}) a negative {kind} level "
+                   f"{th[nm]:.4g} {unit}; refitted with it fixed at 0 (friction levels must be >= 0)")
+    return out
+
+
 def fit_baseline(inp: Inputs, opts, log) -> Baseline:
     if opts.weighted:  # two-step WLS on the baseline fixes the per-joint weights of the selection
         Y0, names0, _ = inp.cf.model([])
         weights = 1.0 / np.maximum(solve_wls(Y0, inp.cf.data.tau, names0, warn=False, rows=inp.cf.rows).rms, 1e-12)
     else:
         weights = np.ones(inp.fit.n)
-    base_fit, _ = fit_model(inp.cf, [], weights)
+    base_fit, _, clamped = fit_friction_bounded(inp.cf, [], weights)
+    inp.warnings.extend(friction_warnings(clamped, inp.joint_names, "baseline"))
     r_val = inp.val.tau - predict_tau(inp.cv, [], base_fit.theta)
     log(f"baseline rms fit {np.round(base_fit.rms, 4)} validate {np.round(rms(r_val), 4)}")
-    return Baseline(weights, base_fit, r_val, R.analyse(inp.fit, base_fit.residual))
+    # the validation residual too: the diagnostics' generalization test compares the two
+    return Baseline(weights, base_fit, r_val, R.analyse(inp.fit, base_fit.residual, validate_residual=r_val))
 
 
 # ------------------------------------------------------------------------------------ estimator
@@ -161,21 +228,21 @@ class Estimator:
     icache: ColumnCache | None = None
     nf: float = 1.0
     report: dict = field(default_factory=lambda: {"method": "least_squares"})
+    clamped: dict = field(default_factory=dict)  # friction levels the last fit fixed at 0
 
     @property
     def iv(self) -> bool:
         return self.method == "instrumental_variables"
 
     def instruments(self) -> ColumnCache | None:
-        """Instrument columns when this estimator is IV, else None (least squares)."""
-        return self.icache if self.iv else None
+        """Instrument columns when this estimator is IV (and the cache exists), else None."""
+        return self.icache if self.iv and self.icache is not None else None
 
     def fit(self, cache: ColumnCache, effects, weights) -> tuple[LSResult, list[slice]]:
-        if self.iv:
-            from robust_drake.identification.instruments import fit_model_iv
-
-            return fit_model_iv(cache, self.icache, effects, weights, self.nf)
-        return fit_model(cache, effects, weights)
+        """Fit with friction levels >= 0 (:func:`fit_friction_bounded`); the levels fixed at 0
+        are in ``self.clamped`` after the call."""
+        fit, slices, self.clamped = fit_friction_bounded(cache, effects, weights, self.instruments(), self.nf)
+        return fit, slices
 
     def as_least_squares(self) -> "Estimator":
         rep = dict(self.report, method="least_squares")
@@ -250,6 +317,7 @@ class Selection:
     weights: np.ndarray
     step_label: dict  # label of a chosen effect -> label of the selection step that added it
     joint_resolution: dict = field(default_factory=dict)
+    rows: dict = field(default_factory=dict)  # the selection's gap and confirmation block
 
 
 def refit_weights(inp: Inputs, base: Baseline, est: Estimator, effects, opts) -> np.ndarray:
@@ -262,15 +330,22 @@ def refit_weights(inp: Inputs, base: Baseline, est: Estimator, effects, opts) ->
 
 
 def select_effects(inp: Inputs, base: Baseline, est: Estimator, opts, log) -> Selection:
-    from robust_drake.model_repair.effects import all_candidates
+    from robust_drake.model_repair.effects import PhysicalContext, all_candidates
     from robust_drake.model_repair.selection import forward_select
 
-    cands = all_candidates(inp.fit.n, kinds=opts.kinds, robot=opts.robot)
+    # the kinds for structure outside the library enter the pool only where a diagnostic of the
+    # baseline residual fired, on that joint / at that frequency (effects.DIAGNOSTIC_KINDS)
+    diag = base.analysis.get("diagnostics", [])
+    cands = all_candidates(inp.fit.n, kinds=opts.kinds, robot=opts.robot, diagnostics=diag)
     sel = forward_select(inp.cf, cands, min_gain=opts.min_gain, max_effects=opts.max_effects, progress=log,
-                         weights=base.weights, icache=est.instruments())
+                         weights=base.weights, icache=est.instruments(),
+                         context=PhysicalContext.from_data(inp.fit, opts.robot))
     chosen = list(sel.chosen)
+    log(f"selection rows: gap {sel.rows.get('gap_s', 0):.3g} s (filter {sel.rows.get('filter_settling_s', 0):.3g} s"
+        f" + residual correlation {sel.rows.get('correlation_time_s', 0):.3g} s), confirmation block "
+        f"{sel.rows.get('confirm_rows', 0)} samples")
     return Selection(cands, list(sel.steps), sel.ranking, chosen, refit_weights(inp, base, est, chosen, opts),
-                     {effect_label(e): effect_label(e) for e in chosen})
+                     {effect_label(e): effect_label(e) for e in chosen}, rows=sel.rows)
 
 
 def resolve_torque_scale(inp: Inputs, base: Baseline, est: Estimator, sel: Selection, opts, log) -> Selection:
@@ -310,14 +385,10 @@ class Guard:
     dropped: list = field(default_factory=list)
 
 
-def reference_rms(base: Baseline, est: Estimator) -> np.ndarray:
-    """Validation RMS torque [N m] per joint an effect must not exceed: the (least-squares)
-    baseline's; with IV (accepted on the replay), on a joint where the IV baseline's torque error
-    is already higher, the IV baseline's (the effect is not to blame for the estimator's cost)."""
-    ref = np.asarray(base.rms_validate, float)
-    if est.iv:
-        ref = np.maximum(ref, np.asarray(est.report["baseline_iv"]["rms_validate"], float))
-    return np.maximum(ref, 1e-12)
+def reference_rms(base: Baseline, est: Estimator | None = None) -> np.ndarray:
+    """Validation RMS torque [N m] per joint the final model (effects and estimator) must not
+    exceed: the least-squares baseline's (``est`` is accepted for compatibility, unused)."""
+    return np.maximum(np.asarray(base.rms_validate, float), 1e-12)
 
 
 def _val_ratio(inp, base, est, effects, opts):
@@ -329,24 +400,34 @@ def _val_ratio(inp, base, est, effects, opts):
 
 def never_worse(inp: Inputs, base: Baseline, est: Estimator, sel: Selection, opts, log,
                 tol: float = NEVER_WORSE_TOL) -> tuple[Estimator, Selection, Guard]:
-    """Drop effects until no joint validates worse than :func:`reference_rms` by more
-    than ``tol`` (relative RMS). At each round every single drop is tried and the one leaving the
-    smallest worst-joint ratio is taken. (The IV switch is judged by :func:`replay_guard`.)"""
+    """Drop effects, or the IV switch, until no joint validates worse than the least-squares
+    baseline (:func:`reference_rms`) by more than ``tol`` (relative RMS). At each round every
+    single drop (each effect, and IV -> LS) is tried and the one leaving the smallest worst-joint
+    ratio is taken."""
     guard = Guard(tol)
     effects = list(sel.chosen)
     while True:
         ratio, r = _val_ratio(inp, base, est, effects, opts)
         guard.attempts.append({"estimator": est.method, "effects": [effect_label(e) for e in effects],
                                "rms_validate": r, "worst_ratio": float(ratio.max())})
-        if ratio.max() <= 1.0 + tol or not effects:
+        if ratio.max() <= 1.0 + tol or not (effects or est.iv):
             break
         bad = [j for j in range(len(ratio)) if ratio[j] > 1.0 + tol]
-        why = (f"with it the validation RMS is worse than the baseline's on joint(s) "
+        why = (f"with it the validation RMS is worse than the least-squares baseline's on joint(s) "
                f"{', '.join(f'{j} ({inp.joint_names[j]}) {ratio[j] - 1:+.1%}' for j in bad)} (tolerance {tol:.0%})")
         scored = [(float(_val_ratio(inp, base, est, effects[:k] + effects[k + 1:], opts)[0].max()), k)
                   for k in range(len(effects))]
-        gone = effects.pop(min(scored)[1])
-        guard.dropped.append({"label": effect_label(gone), "kind": gone.kind, "joint": gone.joint, "reason": why})
+        if est.iv:
+            scored.append((float(_val_ratio(inp, base, est.as_least_squares(), effects, opts)[0].max()), -1))
+        k_drop = min(scored)[1]
+        if k_drop < 0:
+            est = est.as_least_squares()
+            guard.dropped.append({"label": "instrumental variables", "kind": "estimator", "joint": None,
+                                  "reason": why})
+        else:
+            gone = effects.pop(k_drop)
+            guard.dropped.append({"label": effect_label(gone), "kind": gone.kind, "joint": gone.joint,
+                                  "reason": why})
         log(f"never worse: dropped {guard.dropped[-1]['label']}: {why}")
     sel.chosen = effects
     sel.weights = refit_weights(inp, base, est, effects, opts)
@@ -379,7 +460,8 @@ def final_model(inp: Inputs, est: Estimator, sel: Selection, opts) -> Final:
             "parameters": _plain(params),
             "coefficients": [float(c) for c in coef], "standard_errors": [float(s) for s in se],
             "rms_validate_after": rms(rv),
-            "heldout_gain": step.gain, "source": "residual",
+            "heldout_gain": step.gain, "confirmation_gain": step.confirm_gain, "source": "residual",
+            "is_disturbance": bool(getattr(e, "is_disturbance", False)),
             "confidence": "high" if step.gain >= 0.25 and not R.analyse(inp.fit, fk.residual)["unexplained_structure"]
             else "moderate",
             "kept": True, "reason": "selected on held-out error; no joint validates worse than the baseline",
@@ -520,6 +602,8 @@ def replay_guard(inp: Inputs, base: Baseline, est: Estimator, sel: Selection, gu
         rp = replay_models(inp, base, fin, sel, cons, opts, log)
         worse = replay_worse(rp, guard.tolerance)
         if not worse or (not sel.chosen and not est.iv):
+            est.fit(inp.cf, sel.chosen, sel.weights)  # the final fit's friction levels fixed at 0
+            inp.warnings.extend(friction_warnings(est.clamped, inp.joint_names, "final model"))
             return est, sel, fin, cons, rp
         why = (f"replay RMS q on joint(s) {', '.join(f'{j} ({inp.joint_names[j]})' for j in worse)} worse than "
                f"the baseline's replay (tolerance {guard.tolerance:.0%})")
