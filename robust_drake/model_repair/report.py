@@ -98,7 +98,7 @@ def build_report(res: RepairResult) -> dict:
     ident = base.fit.as_dict()
     unident = list(base.fit.unidentifiable) + [
         f"joint {j} ({inp.joint_names[j]}, within {inp.data.position_counts[j]:.0f} encoder counts)" for j in inp.frozen]
-    final_ana = R.analyse(inp.fit, fin.fit.residual)
+    final_ana = R.analyse(inp.fit, fin.fit.residual, validation=(inp.val, fin.val_residual))
     base_model, model = _models(res)
     report = {
         "robot": str(res.opts.robot),

@@ -142,14 +142,16 @@ def spectrum(residual: np.ndarray, dt: float):
 
 
 def analyse(data: IdentData, residual: np.ndarray, eta_min: float = ETA_MIN, alpha: float = ALPHA,
-            validate_residual: np.ndarray | None = None) -> dict:
+            validate_residual: np.ndarray | None = None, validation=None) -> dict:
     """All tests; ``unexplained_structure`` and ``where`` if flagged.
 
     ``where`` lists first the rows of :func:`diagnostics.diagnose` (``test`` = ``periodic`` with
     ``frequency_hz``, ``drift`` with the coefficients of the first / last third and their times,
     ``dead_band`` with the torque range, ``generalization`` when ``validate_residual`` is given),
-    then the state-dependence rows (``test`` = ``state_dependence``: joint, variable, eta2)."""
-    diag = diagnose(data, residual, validate_residual)
+    then the state-dependence rows (``test`` = ``state_dependence``: joint, variable, eta2).
+    ``validation`` = (IdentData, residual) of the validation data: the reversal test runs there
+    too (``test`` = ``reversal`` with ``data`` = ``validation``)."""
+    diag = diagnose(data, residual, validate_residual, validation=validation)
     dep = state_dependence(data, residual)
     white = whiteness(data, residual)
     where = [d for d in dep if d["eta2"] >= eta_min and d["p"] < alpha and not d["variable"].startswith("tau")]

@@ -215,7 +215,8 @@ def fit_baseline(inp: Inputs, opts, log) -> Baseline:
     r_val = inp.val.tau - predict_tau(inp.cv, [], base_fit.theta)
     log(f"baseline rms fit {np.round(base_fit.rms, 4)} validate {np.round(rms(r_val), 4)}")
     # the validation residual too: the diagnostics' generalization test compares the two
-    return Baseline(weights, base_fit, r_val, R.analyse(inp.fit, base_fit.residual, validate_residual=r_val))
+    return Baseline(weights, base_fit, r_val, R.analyse(inp.fit, base_fit.residual, validate_residual=r_val,
+                                                        validation=(inp.val, r_val)))
 
 
 # ------------------------------------------------------------------------------------ estimator
