@@ -86,15 +86,8 @@ def cv_score(cache: "ColumnCache", effects, weights, folds, icache=None) -> floa
     by instrumental variables, (Z^T W Y)^-1 Z^T W tau, instead of least squares."""
     from robust_drake.identification.least_squares import solve_gram
 
-    Y, _, _ = cache.model(effects)
     tau = cache.data.tau
-    Yw = Y * weights[None, :, None]
-    bw = tau * weights[None, :]
-    Zw = Yw if icache is None else icache.model(effects)[0] * weights[None, :, None]
-    Gs, gs = [], []
-    for test in folds:
-        Gs.append(np.einsum("nip,niq->pq", Zw[test], Yw[test], optimize=True))
-        gs.append(np.einsum("nip,ni->p", Zw[test], bw[test], optimize=True))
+    Gs, gs = cache.gram(effects, weights, folds, icache)  # per fold Z^T W Y, Z^T W tau (memoised blocks)
     G_all, g_all = sum(Gs), sum(gs)
     total, count = 0.0, 0
     for test, Gf, gf in zip(folds, Gs, gs):
@@ -164,10 +157,11 @@ def forward_select(cache: ColumnCache, candidates: list, min_gain: float = MIN_G
     n_eff_rows = n_effective(data) * data.n
 
     def evaluate(effects):
-        Y, names, slices = cache.model(effects)
-        if icache is None:
-            fit = solve_ls(Y, tau, names, weights=weights, warn=False)
+        if icache is None:  # from the per-fold Gram blocks that cv_score reuses (fitting.ColumnCache)
+            names, slices = cache.names(effects), cache.blocks(effects)[2]
+            fit = cache.fit_ls(effects, weights, parts=fmask, warn=False)
         else:
+            Y, names, slices = cache.model(effects)
             fit = solve_iv(Y, icache.model(effects)[0], tau, names, weights)
         for e, sl in zip(effects, slices):
             why = implausible(e, fit.theta[sl])
