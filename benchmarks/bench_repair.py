@@ -69,11 +69,12 @@ def _reset_hwm() -> None:
 def _timed(fn, name, times, peaks):
     def wrapper(*a, **k):
         _reset_hwm()
-        t = time.perf_counter()
+        t, c = time.perf_counter(), time.process_time()
         try:
             return fn(*a, **k)
         finally:
             times[name] += time.perf_counter() - t
+            times[name + ":cpu"] += time.process_time() - c
             hwm = _vm_hwm_mb()
             if hwm is not None:
                 peaks[name] = max(peaks.get(name, 0.0), hwm)
@@ -129,12 +130,12 @@ def main(argv=None):
           f"effects {[(e['kind'], e['joint']) for e in rep['effects']]}")
     print(f"wall {wall:.1f} s   cpu {cpu:.1f} s   peak RSS {max([peak_rss_mb(), *peaks.values()]):.0f} MB ("
           f"{rss_before:.0f} MB after simulating the case)")
-    other = wall - sum(times.values())
-    print("  stage        wall s      %   peak RSS in the stage [MB]")
+    times["other"] = wall - sum(times[k] for k in STAGES)
+    times["other:cpu"] = cpu - sum(times[k + ":cpu"] for k in STAGES)
+    print("  stage        wall s      %    cpu s   peak RSS in the stage [MB]")
     for name in list(STAGES) + ["other"]:
-        s = times[name] if name != "other" else other
         peak = f"{peaks[name]:8.0f}" if name in peaks else "       -"
-        print(f"  {name:10s} {s:8.1f} {100 * s / wall:6.1f} {peak}")
+        print(f"  {name:10s} {times[name]:8.1f} {100 * times[name] / wall:6.1f} {times[name + ':cpu']:8.1f} {peak}")
 
 
 if __name__ == "__main__":

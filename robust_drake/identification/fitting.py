@@ -67,6 +67,7 @@ class ColumnCache:
         self._effects: dict = {}
         self._grams: dict = {}
         self._lefts: dict = {}
+        self._last_prediction: tuple = (None, None)
 
     def _key(self, effect):
         # keyed by the object and holding a reference to it (an id() key could be reused)
@@ -79,7 +80,7 @@ class ColumnCache:
             Y = np.asarray(Y, float)
             if Y.ndim == 2:
                 Y = Y[:, :, None]
-            self._effects[key] = (parallel_filter(self.data, Y), list(names), effect)
+            self._effects[key] = (np.ascontiguousarray(parallel_filter(self.data, Y)), list(names), effect)
         return self._effects[key][:2]
 
     def blocks(self, effects) -> tuple[list[np.ndarray], list, list[slice]]:
@@ -119,11 +120,16 @@ class ColumnCache:
 
     def explicit_prediction(self, effects, theta, mask=None, rows=None) -> np.ndarray:
         """sum over blocks of Y_block[rows] @ theta_block (N_rows, n), skipping the columns where
-        ``mask`` (p,) is False: ``Y[rows][:, :, mask] @ theta[mask]`` without the joined copy."""
-        blocks, _, slices = self.blocks(effects)
+        ``mask`` (p,) is False: ``Y[rows][:, :, mask] @ theta[mask]`` without the joined copy.
+        The last all-rows prediction is remembered (the selection's fit residual and its output
+        error ask for the same one)."""
+        blocks, keys, slices = self.blocks(effects)
         theta = np.asarray(theta, float)
         p = slices[-1].stop if slices else self.base.shape[2]
         mask = np.ones(p, bool) if mask is None else np.asarray(mask, bool)
+        memo = (tuple(keys), mask.tobytes(), theta.tobytes()) if rows is None else None
+        if memo is not None and self._last_prediction[0] == memo:
+            return self._last_prediction[1].copy()
         spans = [slice(0, self.base.shape[2])] + slices
         parts = [(Y, sl) for Y, sl in zip(blocks, spans) if mask[sl].any()]
         runs = row_runs(rows, self.data.N)
@@ -137,8 +143,11 @@ class ColumnCache:
             k = r.stop - r.start
             for Y, sl in parts:
                 m = mask[sl]
-                out[at:at + k] += (Y[r] @ theta[sl] if m.all() else Y[r][:, :, m] @ theta[sl][m])
+                Yr = Y[r] if m.all() else Y[r][:, :, m]
+                out[at:at + k] += (Yr.reshape(-1, Yr.shape[2]) @ theta[sl][m]).reshape(k, -1)
             at += k
+        if memo is not None:
+            self._last_prediction = (memo, out.copy())
         return out
 
     def gram(self, effects, weights, masks, left: "ColumnCache | None" = None):
@@ -182,11 +191,13 @@ class ColumnCache:
 
 
 def _wsum(A: np.ndarray, B: np.ndarray, w2: np.ndarray, runs: list[slice]) -> np.ndarray:
-    """sum_j w2_j sum_{rows in runs} A[rows, j, :]^T B[rows, j, :] (strided views, no copies)."""
+    """sum_j w2_j sum_{rows in runs} A[rows, j, :]^T B[rows, j, :]: per run one product of the
+    stacked (rows * n, p) views, the joint weights applied to a copy of the narrower block."""
     out = np.zeros((A.shape[2], B.shape[2]))
     for r in runs:
-        for j in range(A.shape[1]):
-            out += w2[j] * (A[r, j, :].T @ B[r, j, :])
+        a, b = A[r].reshape(-1, A.shape[2]), B[r].reshape(-1, B.shape[2])
+        wr = np.tile(w2, r.stop - r.start)[:, None]
+        out += (a * wr).T @ b if a.shape[1] <= b.shape[1] else a.T @ (b * wr)
     return out
 
 

@@ -52,15 +52,16 @@ def solve_iv(Y: np.ndarray, Z: np.ndarray, tau: np.ndarray, names: list[str], we
     Zw = (Z * w[None, :, None]).reshape(-1, p)
     bw = (tau * w[None, :]).reshape(-1)
     d = np.sqrt(np.maximum(np.einsum("ij,ij->j", Yw, Yw), 1e-300))  # column scaling
-    ZY = (Zw / d).T @ (Yw / d)
-    theta = np.linalg.solve(ZY, (Zw / d).T @ bw) / d
+    Zs = Zw / d  # scaled once (each (rows, p) copy costs as much as a product)
+    ZY = Zs.T @ (Yw / d)
+    theta = np.linalg.solve(ZY, Zs.T @ bw) / d
     resid = tau - Y @ theta
     r_w = resid * w[None, :]
     rss = float(np.sum(r_w**2))
     cond, rank, unident, _ = identifiability(None, names, RANK_TOL, G=Yw.T @ Yw)
     sigma2 = rss / max(N * n - p, 1)
     ZYi = np.linalg.inv(ZY)
-    cov = sigma2 * ZYi @ ((Zw / d).T @ (Zw / d)) @ ZYi.T / np.outer(d, d) / max(n_eff_factor, 1e-12)
+    cov = sigma2 * ZYi @ (Zs.T @ Zs) @ ZYi.T / np.outer(d, d) / max(n_eff_factor, 1e-12)
     se = np.sqrt(np.maximum(np.diag(cov), 0.0))
     rms = np.sqrt(np.mean(resid**2, axis=0))
     res = LSResult(theta=theta, names=list(names), se=se, sigma=rms, weights=w, cond=cond, rank=rank,
@@ -108,13 +109,17 @@ def fit_model_iv(cache, icache, effects, weights, n_eff_factor: float = 1.0):
 
 
 def cutoff_sweep(paths, robot, regressor, cutoffs, torque: str = "tau_meas", weights=None,
-                 ratio: float = INSTRUMENT_RATIO, n_joints=None) -> dict:
+                 ratio: float = INSTRUMENT_RATIO, n_joints=None, reuse=None) -> dict:
     """The attenuation signature: rigid-body base parameters fitted by LS and by IV (instruments at
     ``ratio`` x the cut-off) on the same files at several cut-offs [Hz]. Errors in the variables
     show as LS parameters that shrink as the cut-off rises while IV's move much less.
 
     Returns ``{"cutoff_hz": [...], "names": base names, "least_squares": [[...] per cut-off],
-    "instrumental_variables": [[...]], "nominal": URDF base parameters}``."""
+    "instrumental_variables": [[...]], "nominal": URDF base parameters}``.
+
+    ``reuse``: ``(cache, icache)`` already built from these files at one of the cut-offs (the
+    repair's fit columns and its instruments at ``ratio`` x that cut-off): used for that
+    cut-off instead of loading and building them again."""
     from robust_drake.identification.data import load, load_companion
 
     p0 = len(regressor.base_names)
@@ -122,12 +127,17 @@ def cutoff_sweep(paths, robot, regressor, cutoffs, torque: str = "tau_meas", wei
            "least_squares": [], "instrumental_variables": [],
            "nominal": [float(x) for x in regressor.base_parameters()]}
     for fc in cutoffs:
-        d = load(paths, robot=robot, n_joints=n_joints, torque=torque, cutoff_hz=fc)
-        z = load_companion(paths, d, cutoff_hz=fc * ratio, torque=torque)
-        c, cz = ColumnCache(d, regressor), ColumnCache(z, regressor)
-        w = np.ones(d.n) if weights is None else np.asarray(weights, float)
+        if reuse is not None and np.isclose(reuse[0].data.filter.cutoff_hz, fc, rtol=1e-12, atol=0) \
+                and np.isclose(reuse[1].data.filter.cutoff_hz, fc * ratio, rtol=1e-12, atol=0):
+            c, cz = reuse
+        else:
+            d = load(paths, robot=robot, n_joints=n_joints, torque=torque, cutoff_hz=fc)
+            z = load_companion(paths, d, cutoff_hz=fc * ratio, torque=torque)
+            c, cz = ColumnCache(d, regressor), ColumnCache(z, regressor)
+        w = np.ones(c.data.n) if weights is None else np.asarray(weights, float)
         out["least_squares"].append([float(x) for x in fit_model(c, [], w)[0].theta[:p0]])
         out["instrumental_variables"].append([float(x) for x in fit_model_iv(c, cz, [], w)[0].theta[:p0]])
+        del c, cz  # before the next cut-off's columns are built
     return out
 
 

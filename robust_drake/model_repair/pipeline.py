@@ -300,8 +300,12 @@ def _write_report(report: dict, result, out_path: str, fit_paths, validate_paths
                 from robust_drake.identification import instruments as IV
 
                 fc = inp.fit.filter.cutoff_hz
+                icache = result.estimator.icache
+                # the fit columns and instruments at fc are the repair's own when fit = the whole files
+                reuse = (inp.cf, icache) if inp.fit is inp.data and icache is not None else None
                 sweep = IV.cutoff_sweep(fit_paths, opts.robot, inp.regressor, [0.5 * fc, 0.75 * fc, fc, 1.5 * fc],
-                                        torque=opts.torque, weights=result.selection.weights, n_joints=inp.fit.n)
+                                        torque=opts.torque, weights=result.selection.weights, n_joints=inp.fit.n,
+                                        reuse=reuse)
                 report["estimator"]["cutoff_sweep"] = RP.strict(sweep)
                 IV.plot_cutoff_sweep(sweep, os.path.join(tmp, "estimator_cutoff.png"))
                 report["plots"].append("estimator_cutoff.png")
