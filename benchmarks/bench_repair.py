@@ -11,7 +11,7 @@ does) and prints the wall time, the CPU time, the peak RSS and the time of each 
 significant; ``other``: writing report.md/json and what the stages do not cover).
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/bench_repair.py [--duration 20] [--rate 1000] [--no-plots]
-        [--case dead_zone] [--robot serial7] [--keep DIR]
+        [--case dead_zone] [--robot serial7] [--keep DIR] [--default-allocator]
 
 The same figure from the command line (what BUILD_NOTES quotes):
 ``/usr/bin/time -v robust-drake repair dead_zone_fit.csv --robot serial7 --validate
@@ -104,6 +104,8 @@ def main(argv=None):
     ap.add_argument("--rate", type=float, default=1000.0)
     ap.add_argument("--no-plots", action="store_true")
     ap.add_argument("--keep", help="folder for the CSVs and the report (default: a temporary one)")
+    ap.add_argument("--default-allocator", action="store_true",
+                    help="leave glibc's allocator as it is (the command line keeps freed memory: allocator.py)")
     args = ap.parse_args(argv)
 
     import matplotlib
@@ -118,6 +120,10 @@ def main(argv=None):
                                            rate_hz=args.rate, out_dir=folder)
     print(f"case {args.case} on {args.robot}: {args.duration:g} s at {args.rate:g} Hz, fit and validate "
           f"({time.perf_counter() - t:.1f} s to simulate; not counted)")
+    if not args.default_allocator:
+        from robust_drake.allocator import reuse_freed_memory
+
+        reuse_freed_memory()  # what `robust-drake repair` does
     rss_before = peak_rss_mb()
     times, peaks = defaultdict(float), {}
     instrument(times, peaks)

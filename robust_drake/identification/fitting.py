@@ -102,7 +102,12 @@ class ColumnCache:
         return names
 
     def model(self, effects) -> tuple[np.ndarray, list[str], list[slice]]:
+        """The joined columns (N, n, p); without effects a read-only view of ``base`` (no copy)."""
         blocks, _, slices = self.blocks(effects)
+        if not effects:
+            Y = self.base.view()
+            Y.flags.writeable = False
+            return Y, self.names(effects), slices
         return np.concatenate(blocks, axis=2), self.names(effects), slices
 
     def fit_ls(self, effects, weights=None, parts=None, warn: bool = True) -> LSResult:
