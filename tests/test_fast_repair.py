@@ -163,6 +163,23 @@ def test_cv_score_with_instruments_equals_plain_iv(reg):
     assert _close(cv_score(cache, effects, w, folds, icache), naive_cv_score(cache, effects, w, folds, icache))
 
 
+def test_iv_fit_from_blocks_equals_solve_iv_on_the_joined_model(reg):
+    from robust_drake.identification.instruments import fit_iv_blocks, solve_iv
+
+    data, zdata = _data(reg), _data(reg, cutoff=4.0)
+    cache, icache = ColumnCache(data, reg), ColumnCache(zdata, reg)
+    effects = [_candidates()[2], _candidates()[4]]
+    w = np.array([25.0, 9.0])
+    ref = solve_iv(cache.model(effects)[0], icache.model(effects)[0], data.tau, cache.names(effects), w, 0.3)
+    fast = fit_iv_blocks(cache, icache, effects, w, parts=blocked_folds(data, 4), n_eff_factor=0.3)
+    for attr in ("theta", "se", "residual", "rms", "cov"):
+        assert _close(getattr(fast, attr), getattr(ref, attr)), attr
+    # the plain IV solve itself: (Z^T W Y)^-1 Z^T W tau on the stacked rows
+    Y, Z = cache.model(effects)[0], icache.model(effects)[0]
+    A, B = ((M * w[None, :, None]).reshape(-1, Y.shape[2]) for M in (Y, Z))
+    assert _close(ref.theta, np.linalg.solve(B.T @ A, B.T @ (data.tau * w).reshape(-1)))
+
+
 def test_fit_and_prediction_from_blocks_equal_the_joined_model(reg):
     data = _data(reg)
     cache = ColumnCache(data, reg)
@@ -194,6 +211,17 @@ def test_forward_selection_equals_the_naive_selection(reg):
             assert _close(getattr(a, k), getattr(b, k)), k
     assert [r["label"] for r in fast.ranking] == [r["label"] for r in slow.ranking]
     assert _close([r["score"] or 0.0 for r in fast.ranking], [r["score"] or 0.0 for r in slow.ranking])
+
+
+def test_forward_selection_with_instruments_equals_the_naive_selection(reg):
+    data, zdata = _data(reg, noise=0.02), _data(reg, noise=0.02, cutoff=4.0)
+    fast = forward_select(ColumnCache(data, reg), _candidates(), min_gain=0.01, icache=ColumnCache(zdata, reg))
+    slow = forward_select(NaiveCache(data, reg), _candidates(), min_gain=0.01, icache=NaiveCache(zdata, reg))
+    assert [(e.kind, e.joint) for e in fast.chosen] == [(e.kind, e.joint) for e in slow.chosen]
+    assert fast.chosen and len(fast.steps) == len(slow.steps)
+    for a, b in zip(fast.steps, slow.steps):
+        assert a.label == b.label and a.accepted == b.accepted
+        assert _close([a.score_after, a.gain, a.bic_after], [b.score_after, b.gain, b.bic_after])
 
 
 def test_repair_report_equals_the_naive_pipeline(reg, tmp_path, monkeypatch):

@@ -51,23 +51,50 @@ def solve_iv(Y: np.ndarray, Z: np.ndarray, tau: np.ndarray, names: list[str], we
     Yw = (Y * w[None, :, None]).reshape(-1, p)
     Zw = (Z * w[None, :, None]).reshape(-1, p)
     bw = (tau * w[None, :]).reshape(-1)
-    d = np.sqrt(np.maximum(np.einsum("ij,ij->j", Yw, Yw), 1e-300))  # column scaling
-    Zs = Zw / d  # scaled once (each (rows, p) copy costs as much as a product)
-    ZY = Zs.T @ (Yw / d)
-    theta = np.linalg.solve(ZY, Zs.T @ bw) / d
-    resid = tau - Y @ theta
+    return solve_iv_normal(Yw.T @ Yw, Zw.T @ Yw, Zw.T @ Zw, Zw.T @ bw, lambda theta: tau - Y @ theta,
+                           names, w, N, n_eff_factor)
+
+
+def solve_iv_normal(YY, ZY, ZZ, Zb, residual_of, names: list[str], w: np.ndarray, N: int,
+                    n_eff_factor: float = 1.0) -> LSResult:
+    """:func:`solve_iv` from the weighted products Y^T W Y, Z^T W Y, Z^T W Z, Z^T W tau (p x p,
+    p) and ``residual_of(theta)`` = tau - Y theta (N, n): for callers that hold them already
+    (``fitting.ColumnCache.gram``). Columns are scaled by d = sqrt(diag(Y^T W Y))."""
+    n, p = len(w), len(Zb)
+    d = np.sqrt(np.maximum(np.diag(YY), 1e-300))  # column scaling
+    dd = np.outer(d, d)
+    ZYs = ZY / dd
+    theta = np.linalg.solve(ZYs, Zb / d) / d
+    resid = residual_of(theta)
     r_w = resid * w[None, :]
     rss = float(np.sum(r_w**2))
-    cond, rank, unident, _ = identifiability(None, names, RANK_TOL, G=Yw.T @ Yw)
+    cond, rank, unident, _ = identifiability(None, names, RANK_TOL, G=YY)
     sigma2 = rss / max(N * n - p, 1)
-    ZYi = np.linalg.inv(ZY)
-    cov = sigma2 * ZYi @ (Zs.T @ Zs) @ ZYi.T / np.outer(d, d) / max(n_eff_factor, 1e-12)
+    ZYi = np.linalg.inv(ZYs)
+    cov = sigma2 * ZYi @ (ZZ / dd) @ ZYi.T / dd / max(n_eff_factor, 1e-12)
     se = np.sqrt(np.maximum(np.diag(cov), 0.0))
     rms = np.sqrt(np.mean(resid**2, axis=0))
     res = LSResult(theta=theta, names=list(names), se=se, sigma=rms, weights=w, cond=cond, rank=rank,
                    unidentifiable=unident, residual=resid, rms=rms, N=N, rss_weighted=rss)
     res.cov = cov
     return res
+
+
+def fit_iv_blocks(cache: ColumnCache, icache: ColumnCache, effects, weights, parts=None,
+                  n_eff_factor: float = 1.0) -> LSResult:
+    """``solve_iv(cache.model(effects), icache.model(effects), ...)`` from the memoised block
+    products of :meth:`ColumnCache.gram` (``parts``: row masks partitioning the rows, e.g. the
+    cross-validation folds whose products the held-out score reuses; default all rows)."""
+    w = np.asarray(weights, float)
+    parts = [np.ones(cache.data.N, bool)] if parts is None else parts
+    if not np.array_equal(np.sum(parts, axis=0), np.ones(cache.data.N)):
+        raise ValueError("parts must partition the rows")
+    YY, _ = cache.gram(effects, w, parts)
+    ZY, Zb = cache.gram(effects, w, parts, left=icache)
+    ZZ, _ = icache.gram(effects, w, parts)
+    return solve_iv_normal(sum(YY), sum(ZY), sum(ZZ), sum(Zb),
+                           lambda th: cache.data.tau - cache.explicit_prediction(effects, th),
+                           cache.names(effects), w, cache.data.N, n_eff_factor)
 
 
 def ls_covariance(Y: np.ndarray, tau: np.ndarray, theta: np.ndarray, weights, n_eff_factor: float = 1.0):
@@ -167,5 +194,5 @@ def plot_cutoff_sweep(sweep: dict, path: str, top: int = 4) -> str:
     return path
 
 
-__all__ = ["solve_iv", "hausman", "ls_covariance", "fit_model_iv", "cutoff_sweep", "plot_cutoff_sweep",
+__all__ = ["solve_iv", "solve_iv_normal", "fit_iv_blocks", "hausman", "ls_covariance", "fit_model_iv", "cutoff_sweep", "plot_cutoff_sweep",
            "INSTRUMENT_RATIO"]

@@ -31,7 +31,7 @@ from robust_drake.identification.data import IdentData, n_effective
 from robust_drake.identification.fitting import (  # noqa: F401  (re-exported)
     ColumnCache, effect_label, fit_model, implicit_mask, predict, predict_tau,
 )
-from robust_drake.identification.instruments import solve_iv
+from robust_drake.identification.instruments import fit_iv_blocks, solve_iv  # noqa: F401
 from robust_drake.identification.least_squares import identifiability, solve_ls  # noqa: F401
 
 MIN_GAIN = 0.05
@@ -157,12 +157,12 @@ def forward_select(cache: ColumnCache, candidates: list, min_gain: float = MIN_G
     n_eff_rows = n_effective(data) * data.n
 
     def evaluate(effects):
-        if icache is None:  # from the per-fold Gram blocks that cv_score reuses (fitting.ColumnCache)
-            names, slices = cache.names(effects), cache.blocks(effects)[2]
+        # LS or IV from the per-fold Gram blocks that cv_score reuses (fitting.ColumnCache.gram)
+        names, slices = cache.names(effects), cache.blocks(effects)[2]
+        if icache is None:
             fit = cache.fit_ls(effects, weights, parts=fmask, warn=False)
         else:
-            Y, names, slices = cache.model(effects)
-            fit = solve_iv(Y, icache.model(effects)[0], tau, names, weights)
+            fit = fit_iv_blocks(cache, icache, effects, weights, parts=fmask)
         for e, sl in zip(effects, slices):
             why = implausible(e, fit.theta[sl])
             if why:  # checked before the (costlier) cross validation
