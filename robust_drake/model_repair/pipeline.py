@@ -269,6 +269,7 @@ def run_repair(fit_paths, options: RepairOptions, validate_paths=None, out_dir=N
     warn_msgs = list(dict.fromkeys(inp.warnings + sorted({str(w.message) for w in caught})))
     result = RP.RepairResult(opts, inp, base, est, sel, guard, fin, nominal, cons, replay_out, warn_msgs)
     report = RP.build_report(result)
+    inp.cf.release(result.selection.chosen)  # the candidates' columns are not needed for plots and files
     if out_path is not None:
         _write_report(report, result, out_path, fit_paths, validate_paths)
     return report
