@@ -362,3 +362,17 @@ def test_reuse_freed_memory_keeps_a_freed_large_array_for_the_next_one():
     assert off["kept"] < 0.1 * size  # default: unmapped on free (mapped and faulted again next time)
     assert on["kept"] > 0.9 * size  # kept in the heap ...
     assert on["again"] < 1.1 * size  # ... and the next array of that size reuses it
+
+
+def test_release_keeps_the_answers(reg):
+    """After ``release`` the memo is rebuilt on demand: the same scores and predictions."""
+    data = _data(reg)
+    cache = ColumnCache(data, reg)
+    folds, w = blocked_folds(data, 4), np.array([20.0, 10.0])
+    spring, stribeck = _candidates()[2], _candidates()[4]
+    before = [cv_score(cache, [spring], w, folds), cv_score(cache, [spring, stribeck], w, folds)]
+    Y_before = cache.model([spring, stribeck])[0]
+    cache.release(keep=[spring])
+    assert len(cache._effects) == 1 and not cache._grams
+    assert [cv_score(cache, [spring], w, folds), cv_score(cache, [spring, stribeck], w, folds)] == before
+    assert np.array_equal(cache.model([spring, stribeck])[0], Y_before)
