@@ -30,6 +30,31 @@ def subplots(nrows: int = 1, ncols: int = 1, *, figsize=None, **kwargs):
     return fig, fig.subplots(nrows, ncols, **kwargs)
 
 
+#: points per drawn time series in repair figures (an envelope of 1000 buckets; a 0.8 s
+#: savefig of 20k-sample, 7-joint torque panels becomes ~0.2 s, the picture at 80 dpi the same)
+PLOT_POINTS = 2000
+
+
+def envelope(x: np.ndarray, y: np.ndarray, max_points: int = PLOT_POINTS) -> tuple[np.ndarray, np.ndarray]:
+    """``(x, y)`` thinned to at most ``max_points`` samples for drawing: the samples are cut into
+    ``max_points // 2`` consecutive buckets and each bucket keeps its smallest and its largest
+    ``y`` (in time order), so every peak and spike a full-resolution line shows is still drawn.
+    Series of at most ``max_points`` samples are returned as they are."""
+    x, y = np.asarray(x), np.asarray(y)
+    N = len(y)
+    buckets = max(max_points // 2, 1)
+    if N <= max_points:
+        return x, y
+    size = -(-N // buckets)
+    pad = np.concatenate([y, np.full(buckets * size - N, y[-1])]).reshape(buckets, size)
+    start = np.arange(buckets) * size
+    i_lo = np.minimum(start + np.argmin(pad, axis=1), N - 1)
+    i_hi = np.minimum(start + np.argmax(pad, axis=1), N - 1)
+    idx = np.stack([np.minimum(i_lo, i_hi), np.maximum(i_lo, i_hi)], axis=1).reshape(-1)
+    idx = idx[start.repeat(2) < N]  # buckets that are all padding (none unless N is tiny)
+    return x[idx], y[idx]
+
+
 def _prepare(path) -> pathlib.Path:
     path = pathlib.Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

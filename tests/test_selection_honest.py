@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from scipy import signal
 
+from robust_drake.identification.fitting import ColumnCache
 from robust_drake.model_repair import selection as SEL
 from robust_drake.model_repair.effects import EFFECTS, PhysicalContext, delay_bound, make_effect
 
@@ -108,19 +109,23 @@ def test_confirmation_block_is_the_segment_tail_behind_a_gap():
     assert info["confirm_rows"] == int(confirm.sum())
 
 
-class _Cache:
-    """Minimal column cache: base columns [sign(qd), qd] (friction fc1, fv1) + effect columns."""
+class _Cache(ColumnCache):
+    """Minimal column cache: base columns [sign(qd), qd] (friction fc1, fv1) + effect columns
+    taken as given (no regressor, no filter); the block bookkeeping is ColumnCache's own."""
 
     def __init__(self, data, cols):
-        self.data, self.cols = data, cols
+        self.data = self.source = data
+        self.exclude = self.keep = None
+        self.base, self.base_names, self.n_rigid = np.ascontiguousarray(cols, float), ["fc1", "fv1"], 0
+        self._effects, self._grams, self._lefts = {}, {}, {}
+        self._last_prediction = (None, None)
 
-    def model(self, effects):
-        Y, names, slices = self.cols, ["fc1", "fv1"], []
-        for e in effects:
-            c, nm = e.columns(self.data)
-            slices.append(slice(Y.shape[2], Y.shape[2] + c.shape[2]))
-            Y, names = np.concatenate([Y, c], axis=2), names + nm
-        return Y, names, slices
+    def effect(self, effect):
+        key = self._key(effect)
+        if key not in self._effects:
+            c, nm = effect.columns(self.data)
+            self._effects[key] = (np.ascontiguousarray(c, float), list(nm), effect)
+        return self._effects[key][:2]
 
 
 def _friction_case(seconds=60.0, dt=0.01, seed=0):

@@ -51,22 +51,50 @@ def solve_iv(Y: np.ndarray, Z: np.ndarray, tau: np.ndarray, names: list[str], we
     Yw = (Y * w[None, :, None]).reshape(-1, p)
     Zw = (Z * w[None, :, None]).reshape(-1, p)
     bw = (tau * w[None, :]).reshape(-1)
-    d = np.sqrt(np.maximum(np.einsum("ij,ij->j", Yw, Yw), 1e-300))  # column scaling
-    ZY = (Zw / d).T @ (Yw / d)
-    theta = np.linalg.solve(ZY, (Zw / d).T @ bw) / d
-    resid = tau - Y @ theta
+    return solve_iv_normal(Yw.T @ Yw, Zw.T @ Yw, Zw.T @ Zw, Zw.T @ bw, lambda theta: tau - Y @ theta,
+                           names, w, N, n_eff_factor)
+
+
+def solve_iv_normal(YY, ZY, ZZ, Zb, residual_of, names: list[str], w: np.ndarray, N: int,
+                    n_eff_factor: float = 1.0) -> LSResult:
+    """:func:`solve_iv` from the weighted products Y^T W Y, Z^T W Y, Z^T W Z, Z^T W tau (p x p,
+    p) and ``residual_of(theta)`` = tau - Y theta (N, n): for callers that hold them already
+    (``fitting.ColumnCache.gram``). Columns are scaled by d = sqrt(diag(Y^T W Y))."""
+    n, p = len(w), len(Zb)
+    d = np.sqrt(np.maximum(np.diag(YY), 1e-300))  # column scaling
+    dd = np.outer(d, d)
+    ZYs = ZY / dd
+    theta = np.linalg.solve(ZYs, Zb / d) / d
+    resid = residual_of(theta)
     r_w = resid * w[None, :]
     rss = float(np.sum(r_w**2))
-    cond, rank, unident, _ = identifiability(None, names, RANK_TOL, G=Yw.T @ Yw)
+    cond, rank, unident, _ = identifiability(None, names, RANK_TOL, G=YY)
     sigma2 = rss / max(N * n - p, 1)
-    ZYi = np.linalg.inv(ZY)
-    cov = sigma2 * ZYi @ ((Zw / d).T @ (Zw / d)) @ ZYi.T / np.outer(d, d) / max(n_eff_factor, 1e-12)
+    ZYi = np.linalg.inv(ZYs)
+    cov = sigma2 * ZYi @ (ZZ / dd) @ ZYi.T / dd / max(n_eff_factor, 1e-12)
     se = np.sqrt(np.maximum(np.diag(cov), 0.0))
     rms = np.sqrt(np.mean(resid**2, axis=0))
     res = LSResult(theta=theta, names=list(names), se=se, sigma=rms, weights=w, cond=cond, rank=rank,
                    unidentifiable=unident, residual=resid, rms=rms, N=N, rss_weighted=rss)
     res.cov = cov
     return res
+
+
+def fit_iv_blocks(cache: ColumnCache, icache: ColumnCache, effects, weights, parts=None,
+                  n_eff_factor: float = 1.0) -> LSResult:
+    """``solve_iv(cache.model(effects), icache.model(effects), ...)`` from the memoised block
+    products of :meth:`ColumnCache.gram` (``parts``: row masks partitioning the rows, e.g. the
+    cross-validation folds whose products the held-out score reuses; default all rows)."""
+    w = np.asarray(weights, float)
+    parts = [np.ones(cache.data.N, bool)] if parts is None else parts
+    if not np.array_equal(np.sum(parts, axis=0), np.ones(cache.data.N)):
+        raise ValueError("parts must partition the rows")
+    YY, _ = cache.gram(effects, w, parts)
+    ZY, Zb = cache.gram(effects, w, parts, left=icache)
+    ZZ, _ = icache.gram(effects, w, parts)
+    return solve_iv_normal(sum(YY), sum(ZY), sum(ZZ), sum(Zb),
+                           lambda th: cache.data.tau - cache.explicit_prediction(effects, th),
+                           cache.names(effects), w, cache.data.N, n_eff_factor)
 
 
 def ls_covariance(Y: np.ndarray, tau: np.ndarray, theta: np.ndarray, weights, n_eff_factor: float = 1.0):
@@ -108,13 +136,17 @@ def fit_model_iv(cache, icache, effects, weights, n_eff_factor: float = 1.0):
 
 
 def cutoff_sweep(paths, robot, regressor, cutoffs, torque: str = "tau_meas", weights=None,
-                 ratio: float = INSTRUMENT_RATIO, n_joints=None) -> dict:
+                 ratio: float = INSTRUMENT_RATIO, n_joints=None, reuse=None) -> dict:
     """The attenuation signature: rigid-body base parameters fitted by LS and by IV (instruments at
     ``ratio`` x the cut-off) on the same files at several cut-offs [Hz]. Errors in the variables
     show as LS parameters that shrink as the cut-off rises while IV's move much less.
 
     Returns ``{"cutoff_hz": [...], "names": base names, "least_squares": [[...] per cut-off],
-    "instrumental_variables": [[...]], "nominal": URDF base parameters}``."""
+    "instrumental_variables": [[...]], "nominal": URDF base parameters}``.
+
+    ``reuse``: ``(cache, icache)`` already built from these files at one of the cut-offs (the
+    repair's fit columns and its instruments at ``ratio`` x that cut-off): used for that
+    cut-off instead of loading and building them again."""
     from robust_drake.identification.data import friction_exclusion, load, load_companion
 
     p0 = len(regressor.base_names)
@@ -122,13 +154,18 @@ def cutoff_sweep(paths, robot, regressor, cutoffs, torque: str = "tau_meas", wei
            "least_squares": [], "instrumental_variables": [],
            "nominal": [float(x) for x in regressor.base_parameters()]}
     for fc in cutoffs:
-        d = load(paths, robot=robot, n_joints=n_joints, torque=torque, cutoff_hz=fc, quiet=True)  # reported once
-        z = load_companion(paths, d, cutoff_hz=fc * ratio, torque=torque)
-        ex = friction_exclusion(d)  # the repair's stiction rule
-        c, cz = ColumnCache(d, regressor, exclude=ex), ColumnCache(z, regressor, exclude=ex)
-        w = np.ones(d.n) if weights is None else np.asarray(weights, float)
+        if reuse is not None and np.isclose(reuse[0].data.filter.cutoff_hz, fc, rtol=1e-12, atol=0) \
+                and np.isclose(reuse[1].data.filter.cutoff_hz, fc * ratio, rtol=1e-12, atol=0):
+            c, cz = reuse  # built by the repair with the same stiction rule
+        else:
+            d = load(paths, robot=robot, n_joints=n_joints, torque=torque, cutoff_hz=fc, quiet=True)  # reported once
+            z = load_companion(paths, d, cutoff_hz=fc * ratio, torque=torque)
+            ex = friction_exclusion(d)  # the repair's stiction rule
+            c, cz = ColumnCache(d, regressor, exclude=ex), ColumnCache(z, regressor, exclude=ex)
+        w = np.ones(c.data.n) if weights is None else np.asarray(weights, float)
         out["least_squares"].append([float(x) for x in fit_model(c, [], w)[0].theta[:p0]])
         out["instrumental_variables"].append([float(x) for x in fit_model_iv(c, cz, [], w)[0].theta[:p0]])
+        del c, cz  # before the next cut-off's columns are built
     return out
 
 
@@ -158,5 +195,5 @@ def plot_cutoff_sweep(sweep: dict, path: str, top: int = 4) -> str:
     return path
 
 
-__all__ = ["solve_iv", "hausman", "ls_covariance", "fit_model_iv", "cutoff_sweep", "plot_cutoff_sweep",
+__all__ = ["solve_iv", "solve_iv_normal", "fit_iv_blocks", "hausman", "ls_covariance", "fit_model_iv", "cutoff_sweep", "plot_cutoff_sweep",
            "INSTRUMENT_RATIO"]

@@ -54,14 +54,35 @@ def shift_weights(theta0: np.ndarray, se: np.ndarray, sigma_rel: float = SIGMA_R
     return 1.0 / ((sigma_rel * s) ** 2 + se**2)
 
 
-def span_direction(Yb: np.ndarray, Phi: np.ndarray) -> tuple[np.ndarray, float]:
-    """d with Phi ~= Yb d (stacked rows) and the relative residual ||Phi - Yb d|| / ||Phi||."""
-    A = Yb.reshape(-1, Yb.shape[-1])
-    B = Phi.reshape(-1, Phi.shape[-1])
-    d, *_ = np.linalg.lstsq(A, B, rcond=None)
-    nb = np.linalg.norm(B)
-    rel = float(np.linalg.norm(B - A @ d) / nb) if nb > 0 else np.inf
-    return d, rel
+class SpanBasis:
+    """Thin SVD of the stacked rigid-body columns, Yb = U diag(s) V^T, computed once.
+
+    Every candidate's projection then costs one (rows x p0) x (p0 x k) product instead of a
+    least-squares solve of the whole (rows x p0) problem. Singular values below
+    ``eps * max(rows, p0) * s_max`` are dropped, the rank rule of ``numpy.linalg.lstsq``'s
+    default ``rcond``, so ``d`` is the same minimum-norm solution."""
+
+    def __init__(self, Yb: np.ndarray):
+        A = np.asarray(Yb, float).reshape(-1, Yb.shape[-1])
+        U, s, Vt = np.linalg.svd(A, full_matrices=False)
+        keep = s > np.finfo(float).eps * max(A.shape) * (s[0] if s.size else 0.0)
+        self.U, self.s, self.Vt = U[:, keep], s[keep], Vt[keep]
+
+    def direction(self, Phi: np.ndarray) -> tuple[np.ndarray, float]:
+        B = np.asarray(Phi, float).reshape(-1, Phi.shape[-1])
+        c = self.U.T @ B
+        d = self.Vt.T @ (c / self.s[:, None])
+        nb = np.linalg.norm(B)
+        rel = float(np.linalg.norm(B - self.U @ c) / nb) if nb > 0 else np.inf
+        return d, rel
+
+
+def span_direction(Yb, Phi: np.ndarray) -> tuple[np.ndarray, float]:
+    """d with Phi ~= Yb d (stacked rows, minimum-norm least squares) and the relative residual
+    ||Phi - Yb d|| / ||Phi||. ``Yb``: the (N, n, p0) base columns or their :class:`SpanBasis`
+    (pass the basis when projecting many candidates on the same columns)."""
+    basis = Yb if isinstance(Yb, SpanBasis) else SpanBasis(Yb)
+    return basis.direction(Phi)
 
 
 def chi2(delta: np.ndarray, W: np.ndarray) -> float:
@@ -115,7 +136,7 @@ def compare_with_nominal(cf, cv, regressor, final_fit, chosen, candidates, weigh
            "significant": significant, "rms_fit": _rms(cf.data.tau - predict_tau(cf, chosen, theta_nom)),
            "rms_validate": _rms(rv_nom), "span_candidates": [], "named": None,
            "unexplained_shift": False}
-    Yb = cf.base[:, :, :p0]
+    basis = SpanBasis(cf.base[:, :, :p0])  # one SVD for all candidates
     chosen_kinds = {(e.kind, e.joint) for e in chosen}
     best = None
     for e in candidates:
@@ -125,7 +146,7 @@ def compare_with_nominal(cf, cv, regressor, final_fit, chosen, candidates, weigh
             Phi, _ = cf.effect(e)
         except Exception:  # noqa: BLE001 - an effect that cannot build columns on these data
             continue
-        d, rel = span_direction(Yb, Phi)
+        d, rel = span_direction(basis, Phi)
         if rel > SPAN_TOL:
             continue
         c, c2_after = project_shift(delta, d, W)
@@ -182,5 +203,5 @@ def resolve_torque_scale(theta_rigid: np.ndarray, se_rigid: np.ndarray, theta0: 
             "swapped": bool(swap), "chi2_as_fitted": c_fit, "chi2_swapped": c_alt}
 
 
-__all__ = ["compare_with_nominal", "resolve_torque_scale", "span_direction", "shift_weights",
+__all__ = ["compare_with_nominal", "resolve_torque_scale", "span_direction", "SpanBasis", "shift_weights",
            "fit_with_fixed_rigid", "SIGMA_REL"]

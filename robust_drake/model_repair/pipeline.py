@@ -285,6 +285,7 @@ def run_repair(fit_paths, options: RepairOptions, validate_paths=None, out_dir=N
     warn_msgs = list(dict.fromkeys(inp.warnings + sorted({str(w.message) for w in caught})))
     result = RP.RepairResult(opts, inp, base, est, sel, guard, fin, nominal, cons, replay_out, warn_msgs)
     report = RP.build_report(result)
+    inp.cf.release(result.selection.chosen)  # the candidates' columns are not needed for plots and files
     if out_path is not None:
         _write_report(report, result, out_path, fit_paths, validate_paths)
     return report
@@ -316,8 +317,12 @@ def _write_report(report: dict, result, out_path: str, fit_paths, validate_paths
                 from robust_drake.identification import instruments as IV
 
                 fc = inp.fit.filter.cutoff_hz
+                icache = result.estimator.icache
+                # the fit columns and instruments at fc are the repair's own when fit = the whole files
+                reuse = (inp.cf, icache) if inp.fit is inp.data and icache is not None else None
                 sweep = IV.cutoff_sweep(fit_paths, opts.robot, inp.regressor, [0.5 * fc, 0.75 * fc, fc, 1.5 * fc],
-                                        torque=opts.torque, weights=result.selection.weights, n_joints=inp.fit.n)
+                                        torque=opts.torque, weights=result.selection.weights, n_joints=inp.fit.n,
+                                        reuse=reuse)
                 report["estimator"]["cutoff_sweep"] = RP.strict(sweep)
                 IV.plot_cutoff_sweep(sweep, os.path.join(tmp, "estimator_cutoff.png"))
                 report["plots"].append("estimator_cutoff.png")

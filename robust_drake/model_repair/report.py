@@ -163,8 +163,9 @@ MAX_SEGMENT_COLUMNS = 6
 def torque_validate_figure(res: RepairResult) -> "Figure":
     """Measured, baseline and repaired joint torques [N m] on the validation data: one column
     per validation segment (file, or gap-free stretch of one), each on its own time axis t [s],
-    one row per joint (numbered from 0, as in the report); y-limits shared along a row. Nothing is drawn across a file boundary."""
-    from robust_drake.plotting import subplots
+    one row per joint (numbered from 0, as in the report); y-limits shared along a row. Nothing is drawn across a file boundary.
+    Long series are drawn as their min/max envelope (``plotting.envelope``: every spike kept)."""
+    from robust_drake.plotting import envelope, subplots
 
     inp, base, fin = res.inputs, res.baseline, res.final
     val = inp.val
@@ -179,9 +180,9 @@ def torque_validate_figure(res: RepairResult) -> "Figure":
         axes[0, c].set_title(os.path.basename(str(src)) if src else f"segment {s + 1}", fontsize=8)
         for j in range(val.n):
             ax = axes[j, c]
-            ax.plot(val.t[m], val.tau[m, j], "k", lw=1.2, label="measured")
-            ax.plot(val.t[m], pb[m, j], color="tab:red", lw=0.9, label="baseline model")
-            ax.plot(val.t[m], pf[m, j], color="tab:blue", lw=0.9, label="repaired model")
+            ax.plot(*envelope(val.t[m], val.tau[m, j]), "k", lw=1.2, label="measured")
+            ax.plot(*envelope(val.t[m], pb[m, j]), color="tab:red", lw=0.9, label="baseline model")
+            ax.plot(*envelope(val.t[m], pf[m, j]), color="tab:blue", lw=0.9, label="repaired model")
             ax.grid(alpha=0.3)
             if c == 0:
                 ax.set_ylabel(f"tau joint {j} ({inp.joint_names[j]}) [N m]")

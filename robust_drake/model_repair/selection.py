@@ -66,7 +66,7 @@ from robust_drake.identification.data import IdentData, n_effective
 from robust_drake.identification.fitting import (  # noqa: F401  (re-exported)
     ColumnCache, effect_label, fit_model, implicit_mask, predict, predict_tau,
 )
-from robust_drake.identification.instruments import solve_iv
+from robust_drake.identification.instruments import fit_iv_blocks, solve_iv  # noqa: F401
 from robust_drake.identification.least_squares import identifiability, solve_ls  # noqa: F401
 
 MIN_GAIN = 0.05
@@ -211,23 +211,16 @@ def heldout_error(cache: "ColumnCache", effects, weights, folds, icache=None) ->
     by instrumental variables, (Z^T W Y)^-1 Z^T W tau, instead of least squares."""
     from robust_drake.identification.least_squares import solve_gram
 
-    Y, _, _ = cache.model(effects)
     tau = cache.data.tau
-    Yw = Y * weights[None, :, None]
-    bw = tau * weights[None, :]
-    Zw = Yw if icache is None else icache.model(effects)[0] * weights[None, :, None]
     used = np.zeros(len(tau), bool)
     for test, train in folds:
         used |= test | train
-
-    def gram(m):
-        return (np.einsum("nip,niq->pq", Zw[m], Yw[m], optimize=True),
-                np.einsum("nip,ni->p", Zw[m], bw[m], optimize=True))
-
-    G_all, g_all = gram(used)
+    # Z^T W Y, Z^T W tau over all used rows and over each fold's left-out rows, from the
+    # memoised block products (fitting.ColumnCache.gram: shared by every candidate of a step)
+    Gs, gs = cache.gram(effects, weights, [used] + [used & ~train for _, train in folds], icache)
+    G_all, g_all = Gs[0], gs[0]
     total, count = 0.0, 0
-    for test, train in folds:
-        Gx, gx = gram(used & ~train)
+    for (test, _), Gx, gx in zip(folds, Gs[1:], gs[1:]):
         if icache is None:
             theta = solve_gram(G_all - Gx, g_all - gx, tol=1e-10)[0]
         else:
@@ -321,15 +314,16 @@ def forward_select(cache: ColumnCache, candidates: list, min_gain: float = MIN_G
     split, rows_info = selection_split(data, base.residual, folds, confirm_fraction, gap)
     has_confirm = bool(split.confirm.any())
     cfold = [(split.confirm, split.search)]
+    fit_parts = [split.search, ~split.search]  # all rows (a partition), from memoised block Grams
     rows = data.N * data.n
     n_eff_rows = n_effective(data) * data.n
 
     def evaluate(effects):
-        Y, names, slices = cache.model(effects)
+        names, slices = cache.names(effects), cache.blocks(effects)[2]
         if icache is None:
-            fit = solve_ls(Y, tau, names, weights=weights, warn=False)
+            fit = cache.fit_ls(effects, weights, parts=fit_parts, warn=False)
         else:
-            fit = solve_iv(Y, icache.model(effects)[0], tau, names, weights)
+            fit = fit_iv_blocks(cache, icache, effects, weights, parts=fit_parts)
         ctx = context.with_friction(fit.theta, names)
         for e, sl in zip(effects, slices):
             why = implausible(e, fit.theta[sl], ctx)
