@@ -100,6 +100,18 @@ KNOWN: dict = {
     ("serial7", "jitter", "artefact"):
         "the clean base case (torque_scale) keeps nothing (see its library entry), so there is no "
         "answer to compare the jittered log's with (the jittered log keeps nothing either)",
+    ("siciliano_2link", "dead_zone", "diagnosed"):
+        "threshold off: named dead_zone[1] with d = 87.6 N m (true 60, +46 %) and share c = 0.69: the "
+        "dead-band diagnostic's estimate is 97.4 N m on 8 s runs and the candidates are only 0.9 / "
+        "1 / 1.1 x it, so the share compensates (the torque lost above the band, c d = 60.3 N m, is "
+        "right within 1 %); validation of the elbow 29.1 -> 9.1 N m",
+    ("puma560_3link", "dead_zone", "diagnosed"):
+        "threshold off: named dead_zone[1] with d = 8.33 N m (true 6, +39 %, the dead-band "
+        "diagnostic's own estimate) and share c = 0.72 (c d = 6.02 N m, right within 1 %); "
+        "validation of the shoulder 3.0 -> 0.46 N m",
+    ("serial7", "dead_zone", "diagnosed"):
+        "threshold off: named dead_zone[1] with d = 5.0 N m (true 3, +67 %; the diagnostic's 4.54 "
+        "x 1.1) and share c = 0.62 (c d = 3.09 N m, +3 %); validation of joint 1 1.94 -> 0.36 N m",
     ("serial7", "periodic_fast", "diagnosed"):
         "not named: the 3.1 Hz periodic diagnostic fires on joint 1 and periodic_disturbance[1] is "
         "offered (held-out score 0.899), but with 7 joints weighted equally the step's CV winner is "
