@@ -73,15 +73,6 @@ KNOWN: dict = {
     ("siciliano_2link", "drift", "outside"):
         "not flagged on 8 s runs (the viscous coefficient of the elbow grows 1.6 N m s/rad per s); "
         "test_outside_library flags it on 12 s runs",
-    ("siciliano_2link", "backlash", "outside"):
-        "not flagged: the elbow's validation RMS is 31.7 N m against the 2.7 N m no-effect floor, yet "
-        "no diagnostic (periodic, drift, dead-band, state dependence, generalization) fires",
-    ("puma560_3link", "backlash", "outside"):
-        "not flagged: the waist's validation RMS is 1.25 N m against the 0.091 N m no-effect floor, "
-        "yet no diagnostic fires",
-    ("serial7", "backlash", "outside"):
-        "not flagged: joint 1's validation RMS is 0.51 N m against the 0.108 N m no-effect floor, yet "
-        "no diagnostic fires",
     ("puma560_3link", "spring", "library"):
         "not named: on the shoulder's +-1 rad swing about -0.8 rad a spring k q and a cogging of "
         "harmonic 2 (sin 2q, cos 2q, next to the gravity columns) are nearly collinear: held-out "
