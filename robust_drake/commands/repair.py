@@ -3,7 +3,8 @@
 ::
 
     robust-drake repair FIT.csv [FIT2.csv ...] --robot NAME_OR_URDF [--validate VAL.csv ...]
-                        [--torque tau_meas|tau_con] [--cutoff HZ] --out DIR [--force] [--json] [--plot DIR2]
+                        [--torque tau_meas|tau_con] [--cutoff HZ]
+                        [--velocities differentiated|logged] --out DIR [--force] [--json] [--plot DIR2]
 
 Writes ``DIR/report.md``, ``DIR/report.json`` and (unless ``--no-plots``) the residual plots
 ``residual_fit.png``, ``residual_validate.png``, ``torque_validate.png`` (and
@@ -37,6 +38,10 @@ def register(subparsers) -> None:
                    help="DFKI torque column (ignored for canonical CSVs)")
     p.add_argument("--cutoff", type=float, default=None, metavar="HZ",
                    help="zero-phase low-pass cut-off for q and tau (default 8 Hz)")
+    p.add_argument("--velocities", choices=("differentiated", "logged"), default="differentiated",
+                   help="differentiated (default): velocities and accelerations from the filtered "
+                        "positions; logged: low-pass the log's velocity columns qd1..qdn (a real "
+                        "velocity sensor, e.g. a motor encoder's speed) and differentiate them once")
     p.add_argument("--effects", default=None, metavar="K1,K2",
                    help="restrict the candidate effect kinds (default: the whole library)")
     p.add_argument("--min-gain", type=non_negative(float, "--min-gain"), default=None,
@@ -78,6 +83,7 @@ def run(args) -> int:
             raise RobustDrakeError(f"unknown effect kind(s) {bad}; known: {', '.join(EFFECTS)}")
     opts = RepairOptions(
         robot=args.robot, torque=args.torque,
+        velocities="logged" if args.velocities == "logged" else "positions",
         cutoff_hz=DEFAULT_CUTOFF_HZ if args.cutoff is None else args.cutoff,
         kinds=kinds, min_gain=MIN_GAIN if args.min_gain is None else args.min_gain,
         max_effects=args.max_effects, consistent=not args.no_consistent, replay=not args.no_replay,

@@ -779,8 +779,10 @@ def load_companion(paths, like: IdentData, cutoff_hz: float | None, torque: str 
     """The same files as ``like`` filtered at another cut-off (e.g. the instruments), on exactly
     ``like``'s rows: the same trim rule (``like.filter.trim_s``), hence the same segments and
     samples. Raises :class:`DataError` if the rows differ (they cannot, by construction)."""
+    vel = "logged" if like.filter.velocities == "logged velocities" else "positions"  # as ``like``
     other = load(paths, robot=like.robot, n_joints=like.n, torque=torque, cutoff_hz=cutoff_hz,
-                 order=like.filter.order if order is None else order, trim_s=like.filter.trim_s, quiet=True)
+                 order=like.filter.order if order is None else order, trim_s=like.filter.trim_s,
+                 velocities=vel, quiet=True)
     same_rows(like, other)
     return other
 

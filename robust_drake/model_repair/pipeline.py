@@ -48,6 +48,9 @@ class RepairOptions:
     robot: str
     torque: str = "tau_meas"
     cutoff_hz: float | None = DEFAULT_CUTOFF_HZ
+    #: "positions" (differentiate the filtered positions) or "logged" (low-pass the log's qd
+    #: columns, for real velocity sensors; identification.data.prepare); the instrument load follows
+    velocities: str = "positions"
     kinds: list[str] | None = None  # effect kinds to consider (default: the whole library)
     min_gain: float = MIN_GAIN
     max_effects: int = 4

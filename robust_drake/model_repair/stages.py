@@ -103,11 +103,11 @@ def load_inputs(fit_paths, validate_paths, opts, log) -> Inputs:
         warn += IC.prismatic_warnings(regressor.plant)
     names = joint_names_of(regressor, n) if n is not None else None
     data = load(fit_paths, robot=opts.robot, n_joints=n, torque=opts.torque, cutoff_hz=opts.cutoff_hz,
-                joint_names=names)
+                velocities=opts.velocities, joint_names=names)
     notes = list(opts.notes)
     if validate_paths:
         val = load(validate_paths, robot=opts.robot, n_joints=data.n, torque=opts.torque, cutoff_hz=opts.cutoff_hz,
-                   joint_names=names)
+                   velocities=opts.velocities, joint_names=names)
         fit = data
     else:
         fit, val = split_tail(data)
