@@ -251,6 +251,21 @@ def test_library_effect_named_recovered_and_halved(arm, case, battery_dir):
     assert all(c != "high" for _, _, c in r["claimed"][1:]), r["claimed"]
 
 
+@pytest.mark.parametrize("arm,case", _params(("rotor_inertia",), "span"))
+def test_rotor_inertia_in_the_span_named_from_the_shift(arm, case, battery_dir):
+    """The reflected rotor inertia of a model without the motors' inertia is named (by the
+    residual or, where a free fit absorbs it, by the base-parameter shift against the URDF) with
+    its value within the case's tolerance, and URDF + it at least halves the URDF-only model's
+    validation error on its joint."""
+    r = _row(arm, case, battery_dir)
+    t = r["truth"]
+    assert r["found"], (r["labels"], t)
+    assert abs(r["estimate"] - r["true"]) <= t["rtol"] * abs(r["true"]), (r["estimate"], r["true"])
+    if r["named_after"] is not None:
+        j = t["joint"]
+        assert r["named_after"][j] <= 0.5 * r["nominal_before"][j], (r["nominal_before"], r["named_after"])
+
+
 @pytest.mark.parametrize("arm,case", _params(("time_delay",), "no_bus"))
 def test_delay_without_a_declared_bus_is_not_claimed(arm, case, battery_dir):
     """The arm's description declares no bus: a delay has no physical source, so none is
