@@ -78,6 +78,20 @@ def _prefill_delay_lines(diagram, ctx, seg: IdentData, k: int) -> None:
             x[1:] = hist.ravel()
 
 
+def _prefill_presliding(diagram, ctx, seg: IdentData, k: int) -> None:
+    """Set every presliding (Dahl) block's state z to the value the measured positions before
+    sample k imply (``effects.presliding_state`` along seg.q[:k+1]), as the delay lines get their
+    torque history: left at 0 (or at the previous window's end) a 40 N m Dahl term starts each
+    window with the wrong friction."""
+    from robust_drake.model_repair.effects import PreslidingFrictionBlock, presliding_state
+
+    for sys in diagram.GetSystems():
+        if isinstance(sys, PreslidingFrictionBlock):
+            z = np.array([presliding_state(seg.q[:k + 1, j], sys.x0)[-1] if sys.active[j] else 0.0
+                          for j in range(sys.n)])
+            sys.GetMyMutableContextFromRoot(ctx).SetContinuousState(z)
+
+
 def replay(robot, data: IdentData, coulomb, viscous, effects=(), inertias=None, horizon=DEFAULT_HORIZON,
            max_windows=MAX_WINDOWS) -> dict:
     """Short-horizon replays; returns per-joint RMS position error (all samples, window ends)."""
@@ -100,6 +114,7 @@ def replay(robot, data: IdentData, coulomb, viscous, effects=(), inertias=None, 
         for k in starts:
             ctx.SetTime(float(seg.t[k]))
             _prefill_delay_lines(diagram, ctx, seg, k)
+            _prefill_presliding(diagram, ctx, seg, k)
             plant.SetPositions(pctx, seg.q[k])
             plant.SetVelocities(pctx, seg.qd[k])
             sim.Initialize()
