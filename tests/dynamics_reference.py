@@ -21,3 +21,16 @@ def christoffel_C(dM, qd):
     """C_ij = sum_k 1/2 (dM_ij/dq_k + dM_ik/dq_j - dM_jk/dq_i) qd_k."""
     c = 0.5 * (dM + np.transpose(dM, (0, 2, 1)) - np.transpose(dM, (2, 0, 1)))
     return c @ qd
+
+
+def damped_siciliano_urdf(tmp_path, damping: float = 0.7):
+    """Path of a copy of the Siciliano 2-link URDF whose joint2 has viscous joint damping [N m s/rad]."""
+    from robust_drake.models import resolve_urdf
+
+    src = resolve_urdf("siciliano_2link").read_text()
+    damped = src.replace('<joint name="joint2" type="continuous">',
+                         f'<joint name="joint2" type="continuous">\n    <dynamics damping="{damping:g}"/>')
+    assert damped != src, "joint2 not found in the Siciliano URDF"
+    path = tmp_path / "damped.urdf"
+    path.write_text(damped)
+    return path

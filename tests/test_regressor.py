@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from dynamics_reference import christoffel_C, mass_matrix_and_derivative
+from dynamics_reference import christoffel_C, damped_siciliano_urdf, mass_matrix_and_derivative
 
 from robust_drake.errors import RobustDrakeError
 from robust_drake.models import (
@@ -236,11 +236,7 @@ def test_inputs_cache_and_errors():
 def test_joint_damping_becomes_a_parameter(tmp_path):
     """A URDF with joint damping: Drake adds it through CalcForceElementsContribution; the
     regressor carries it as a base parameter b_<joint> (viscous column v_j)."""
-    src = resolve_urdf("siciliano_2link").read_text()
-    damped = src.replace('<joint name="joint2" type="continuous">',
-                         '<joint name="joint2" type="continuous">\n    <dynamics damping="0.7"/>')
-    path = tmp_path / "damped.urdf"
-    path.write_text(damped)
+    path = damped_siciliano_urdf(tmp_path, 0.7)
     plant = make_plant(str(path))
     ctx = plant.CreateDefaultContext()
     q, v, vd = _states(2, 10, seed=30)

@@ -11,7 +11,7 @@ import math
 import numpy as np
 import pytest
 
-from dynamics_reference import christoffel_C, mass_matrix_and_derivative
+from dynamics_reference import christoffel_C, damped_siciliano_urdf, mass_matrix_and_derivative
 
 from robust_drake.errors import RobustDrakeError
 from robust_drake.models import ROBOTS, d2r2_theta_from_plant, make_plant, resolve_urdf, set_d2r2_theta
@@ -117,11 +117,7 @@ def test_d2r2_reproduces_js_eq15(load):
 
 def test_symbolic_and_numeric_routes_agree_and_damping_acts_on_qd(tmp_path):
     """A URDF with joint damping: b_j multiplies the true velocity qd_j, not the reference v_j."""
-    src = resolve_urdf("siciliano_2link").read_text()
-    damped = src.replace('<joint name="joint2" type="continuous">',
-                         '<joint name="joint2" type="continuous">\n    <dynamics damping="0.7"/>')
-    path = tmp_path / "damped.urdf"
-    path.write_text(damped)
+    path = damped_siciliano_urdf(tmp_path, 0.7)
     plant = make_plant(str(path))
     ctx = plant.CreateDefaultContext()
     ad = plant.ToAutoDiffXd()
