@@ -14,7 +14,7 @@ import pytest
 from dynamics_reference import christoffel_C, damped_siciliano_urdf, mass_matrix_and_derivative
 
 from robust_drake.errors import RobustDrakeError
-from robust_drake.models import ROBOTS, d2r2_theta_from_plant, make_plant, resolve_urdf, set_d2r2_theta
+from robust_drake.models import ROBOTS, d2r2_theta_from_plant, make_plant, set_d2r2_theta
 from robust_drake.regressor import InverseDynamicsRegressor, d2r2_regressor
 
 ALL = [(r, load) for r in ROBOTS for load in ROBOTS[r].loads]
