@@ -13,6 +13,7 @@ import warnings
 import numpy as np
 import pandas as pd
 import pytest
+from shared_data import dfki_root
 
 from robust_drake.errors import DataError
 from robust_drake.identification import conditioning as C
@@ -299,12 +300,7 @@ def test_stiction_is_reported(tmp_path):
 
 
 # ----------------------------------------------------------------------------- DFKI unchanged
-def _dfki():
-    here = os.path.dirname(os.path.abspath(__file__))
-    for root in (os.environ.get("ROBUST_DRAKE_DATA"), os.path.join(here, "..", "..", "shared", "data")):
-        if root and os.path.isdir(os.path.join(root, "dfki_double_pendulum", "design_C1")):
-            return os.path.join(root, "dfki_double_pendulum")
-    return None
+_dfki = dfki_root
 
 
 @pytest.mark.skipif(_dfki() is None, reason="shared DFKI data not available")

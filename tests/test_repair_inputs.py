@@ -16,6 +16,7 @@ import shutil
 import numpy as np
 import pandas as pd
 import pytest
+from shared_data import dfki_root
 
 from robust_drake import cli
 from robust_drake.errors import RobustDrakeError
@@ -26,12 +27,7 @@ QUICK = ["--no-replay", "--no-consistent", "--no-instruments", "--no-nominal", "
          "--max-effects", "1"]
 
 
-def _shared_dfki():
-    here = os.path.dirname(os.path.abspath(__file__))
-    for root in (os.environ.get("ROBUST_DRAKE_DATA"), os.path.join(here, "..", "..", "shared", "data")):
-        if root and os.path.isdir(os.path.join(root, "dfki_double_pendulum", "design_C1")):
-            return os.path.join(root, "dfki_double_pendulum")
-    return None
+_shared_dfki = dfki_root
 
 
 DFKI = _shared_dfki()
