@@ -24,10 +24,11 @@ import math
 
 import numpy as np
 
+from robust_drake.description import packaged_description
 from robust_drake.errors import RobustDrakeError
 
-#: JS table 11, nominal D2R2 parameter vector (eq. 14).
-THETA0_TABLE11 = (0.731, 0.108, 0.082)
+#: JS table 11, nominal D2R2 parameter vector (eq. 14), from robots/d2r2.yaml.
+THETA0_TABLE11 = packaged_description("d2r2").parameter_sets["theta0"]
 
 
 def d2r2_inertia(q2: float, theta) -> tuple[float, float, float]:
