@@ -120,3 +120,17 @@ def test_every_shipped_description_matches_its_urdf(robot):
 def test_bad_description_is_a_user_error(tmp_path, bad, match):
     with pytest.raises(RobustDrakeError, match=match):
         describe(_user_arm(tmp_path, bad))
+
+
+def test_link_side_torque_interface_is_a_fact_not_a_gap(tmp_path):
+    """The Panda's null gear ratio and rotor inertia are declared (commands are link-side joint
+    torques); a fitted rotor inertia on such an arm is flagged, on a motor-side arm it is not."""
+    from robust_drake.model_repair.pipeline import plausibility
+
+    d = describe("panda")
+    assert d.torque_interface == "link_side" and d.gear_ratio is None and d.rotor_inertia is None
+    assert "link-side torques" in plausibility("rotor_inertia", {"reflected_inertia": 0.01}, "panda")
+    assert "link-side" not in plausibility("rotor_inertia", {"reflected_inertia": 0.01}, _user_arm(tmp_path))
+    with pytest.raises(RobustDrakeError, match="torque_interface"):
+        (tmp_path / "bad").mkdir()
+        describe(_user_arm(tmp_path / "bad", "name: x\ntorque_interface: sideways\n"))
