@@ -6,7 +6,8 @@ by robot (a name in ``robust_drake.models.ROBOTS`` or a URDF path); a robot with
 :data:`DEFAULT` (no plant friction, exact encoder, no torque limit, nothing known about the
 drive).  Code asks the description, never the robot's name: the closed loop's plant defaults
 (:meth:`RobotDescription.closed_loop_defaults`, each overridable in ``ClosedLoopConfig``), which
-closed-form Slotine-Li regressor exists, which flexibility parameter set, and the hardware facts
+closed-form regressor and parameter sets the papers give, the published controller design, the
+flexibility estimates, and the hardware facts
 the repair's plausibility notes quote (gear ratio, rotor inertia, backlash, bus).
 
 File format (every key optional except ``name``)::
@@ -32,7 +33,9 @@ File format (every key optional except ``name``)::
     torque_interface: null               # link_side: the command is a link-side joint torque
                                          # closed by the maker's torque loop (rotor, gears inside it)
     sample_rate: 2500                    # Hz, the controller rate of the hardware
-    closed_form_regressor: d2r2          # key of spong.CLOSED_FORM_SLOTINE_LI, or null
+    closed_form_regressor: d2r2          # the paper's regressor, whose parameters parameter_sets hold:
+                                         # d2r2 (JS eq. 15, also a key of spong.CLOSED_FORM_SLOTINE_LI),
+                                         # imi_scara (CI section 5), or null
     parameter_sets:                      # name -> parameter vector of the closed-form regressor
       unloaded: [0.678, 0.033, 0.029]
     load_intervals:                      # name -> [low, high], the payload box (Monte Carlo)

@@ -21,11 +21,13 @@ PACKAGE = pathlib.Path(__file__).resolve().parents[1] / "robust_drake"
 
 def _regressor_columns(key: str) -> int:
     """Number of parameters of the closed-form regressor ``key`` (evaluated, not declared)."""
-    from robust_drake.regressor import d2r2_regressor
+    from robust_drake.regressor import d2r2_regressor, imi_scara_regressor
 
     z = np.zeros(2)
     if key == "d2r2":  # JS eq. 15
         return np.asarray(d2r2_regressor(z, z, z, z)).shape[-1]
+    if key == "imi_scara":  # CI section 5
+        return np.asarray(imi_scara_regressor(z, z, z)).shape[-1]
     raise AssertionError(f"closed_form_regressor {key!r}: add its regressor to this test")
 
 
@@ -105,6 +107,7 @@ D2R2_NUMBERS = [
     ("0.053", ",", "0.075"), ("0.678",), ("0.784",), ("0.731",), ("1.1841",), ("0.0694",),
     ("1.3254",), ("0.2571",), ("0.0276",), ("30.0", ",", "10.0"), ("50.0", ",", "20.0"),
     ("0.044566",), ("7.1e3",), ("5.0e4",),
+    ("0.359",), ("4.69",),  # the IMI SCARA's l1 and theta0 (robots/imi_scara.yaml)
 ]
 
 
