@@ -100,14 +100,15 @@ def test_d2r2_closed_loop_uses_the_description():
     assert c.torque_limit == raw["torque_limits"]
 
 
-#: The D2R2's published numbers (and our friction choice), each as the token sequence a second
-#: copy in Python would have.  They live in robots/d2r2.yaml only.
+#: The D2R2's published numbers (and our friction choice) and a few of the other robots', each as
+#: the token sequence a second copy in Python would have.  They live in robots/*.yaml only.
 D2R2_NUMBERS = [
     ("655360",), ("655360.0",), ("1.2", ",", "2.3"), ("0.15", ",", "0.08"), ("31.2",), ("0.1062",),
     ("0.053", ",", "0.075"), ("0.678",), ("0.784",), ("0.731",), ("1.1841",), ("0.0694",),
     ("1.3254",), ("0.2571",), ("0.0276",), ("30.0", ",", "10.0"), ("50.0", ",", "20.0"),
     ("0.044566",), ("7.1e3",), ("5.0e4",),
     ("0.359",), ("4.69",),  # the IMI SCARA's l1 and theta0 (robots/imi_scara.yaml)
+    ("97.6",), ("25.98",), ("6.07e-5",),  # PUMA torque limit and friction, AK80-6 rotor inertia
 ]
 
 
