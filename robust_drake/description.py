@@ -46,6 +46,7 @@ File format (every key optional except ``name``)::
       rho_sp1: 0.1062                    # SP1 bound ||theta - theta0||
       rho_sp2: [0.053, 0.075, 0.053]     # SP2 per-parameter bounds
       zc_beta: [0.0276, 1.3254, 0.2571]  # Zenieh-Corless beta0, beta1, beta2
+      br_mass_model: diag_q0             # Bascetta-Rocco M_hat: diag_q0 (constant diag M(0)) | model
     flexibility: {...}                   # physical estimates for --flexible (FLEXIBILITY_KEYS), or null
     friction_compensation_k_hat: [1, 2]  # N m, JS eqs. 89-90
     simulation:                          # closed-loop plant defaults
@@ -87,13 +88,16 @@ class ControllerDesign:
     ``K`` [N m s/rad] and ``Lambda`` [1/s] are the diagonal gains of the error terms
     r = q~' + Lambda q~ (JS eq. 11); ``rho_sp1`` the SP1 bound on ||theta - theta0||_2,
     ``rho_sp2`` SP2's per-parameter bounds (JS eq. 18, table 10); ``zc_beta`` the Zenieh-Corless
-    bounds (beta0, beta1, beta2) of JS eqs. 21-23 and 28."""
+    bounds (beta0, beta1, beta2) of JS eqs. 21-23 and 28; ``br_mass_model`` the Bascetta-Rocco
+    controller's inertia model, ``"diag_q0"`` (BR section V: the constant M_hat = diag(M(0)))
+    or ``"model"`` (M_hat(q) of the nominal model, the default)."""
 
     K: tuple | None = None
     Lambda: tuple | None = None
     rho_sp1: float | None = None
     rho_sp2: tuple | None = None
     zc_beta: tuple | None = None
+    br_mass_model: str | None = None
 
 
 @dataclass(frozen=True)
@@ -208,8 +212,12 @@ def _controller_design(doc, path) -> ControllerDesign:
     known = {f.name for f in fields(ControllerDesign)}
     if set(d) - known:
         raise RobustDrakeError(f"{path}: unknown controller_design keys {sorted(set(d) - known)}; known: {sorted(known)}")
-    return ControllerDesign(**{k: (_opt_float(v, f"controller_design.{k}", path) if k == "rho_sp1"
-                                   else _opt_tuple(v, f"controller_design.{k}", path)) for k, v in d.items()})
+    mm = d.get("br_mass_model")
+    if mm not in (None, "diag_q0", "model"):
+        raise RobustDrakeError(f"{path}: controller_design.br_mass_model must be diag_q0 or model (got {mm!r})")
+    return ControllerDesign(**{k: (v if k == "br_mass_model" else _opt_float(v, f"controller_design.{k}", path)
+                                   if k == "rho_sp1" else _opt_tuple(v, f"controller_design.{k}", path))
+                               for k, v in d.items()})
 
 
 def _flexibility(doc, path) -> dict | None:
