@@ -134,3 +134,22 @@ def test_link_side_torque_interface_is_a_fact_not_a_gap(tmp_path):
     with pytest.raises(RobustDrakeError, match="torque_interface"):
         (tmp_path / "bad").mkdir()
         describe(_user_arm(tmp_path / "bad", "name: x\ntorque_interface: sideways\n"))
+
+
+def test_zc_takes_published_bounds_from_the_description_not_the_name(tmp_path):
+    """A user's arm whose description publishes ZC bounds and gains gets them (no box search,
+    uncertainty None) and refuses a box request; the D2R2 gets its file's values."""
+    from robust_drake.registry import BuildContext
+    from robust_drake.systems.controllers.zenieh_corless import make_zc
+
+    design = "controller_design: {K: [7.0, 3.0], Lambda: [9.0, 4.0], zc_beta: [0.01, 0.9, 0.2]}\n"
+    path = _user_arm(tmp_path, "name: my_arm\nn: 2\n" + design)
+    ctx = BuildContext(robot=path, arm=None, load="none", n=2, period=4e-4, config=None)
+    c = make_zc(ctx, epsilon=10.0)
+    assert (c.beta1, c.beta2, c.K, c.Lambda, c.uncertainty) == (0.9, 0.2, (7.0, 3.0), (9.0, 4.0), None)
+    with pytest.raises(RobustDrakeError, match="rel_bound/abs_bound"):
+        make_zc(ctx, rel_bound=0.1)
+    # the D2R2 by name: JS appendix 12.2 and section 8, the values of its file
+    d = describe("d2r2").controller_design
+    c = make_zc(BuildContext(robot="d2r2", arm=None, load="none", n=2, period=4e-4, config=None))
+    assert (c.beta1, c.beta2, c.K, c.Lambda) == (d.zc_beta[1], d.zc_beta[2], d.K, d.Lambda)
