@@ -153,3 +153,19 @@ def test_zc_takes_published_bounds_from_the_description_not_the_name(tmp_path):
     d = describe("d2r2").controller_design
     c = make_zc(BuildContext(robot="d2r2", arm=None, load="none", n=2, period=4e-4, config=None))
     assert (c.beta1, c.beta2, c.K, c.Lambda) == (d.zc_beta[1], d.zc_beta[2], d.K, d.Lambda)
+
+
+def test_lg_uses_the_robots_own_parameter_sets(tmp_path):
+    """LG / LG+ take theta_nom and the width from the robot's parameter sets (JS eqs. 44-46),
+    the user's arm's own, not the D2R2's tables."""
+    from robust_drake.registry import BuildContext
+    from robust_drake.systems.controllers.liu_goldenberg import make_lg, make_lgplus
+
+    sets = "closed_form_regressor: d2r2\nparameter_sets: {unloaded: [0.5, 0.1, 0.05], loaded: [0.7, 0.3, 0.15]}\n"
+    ctx = BuildContext(robot=_user_arm(tmp_path, "name: my_arm\nn: 2\n" + sets), arm=None, load="none",
+                       n=2, period=4e-4, config=None)
+    lg, lgp = make_lg(ctx), make_lgplus(ctx)
+    np.testing.assert_allclose(lg.theta_nom, [0.5, 0.1, 0.05])
+    np.testing.assert_allclose(lg.width, [0.2, 0.2, 0.1])
+    np.testing.assert_allclose(lgp.theta_nom, [0.6, 0.2, 0.1])
+    np.testing.assert_allclose(lgp.width, [0.1, 0.1, 0.05])
