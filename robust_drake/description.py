@@ -7,8 +7,8 @@ by robot (a name in ``robust_drake.models.ROBOTS`` or a URDF path); a robot with
 drive).  Code asks the description, never the robot's name: the closed loop's plant defaults
 (:meth:`RobotDescription.closed_loop_defaults`, each overridable in ``ClosedLoopConfig``), which
 closed-form regressor and parameter sets the papers give, the published controller design, the
-flexibility estimates, and the hardware facts
-the repair's plausibility notes quote (gear ratio, rotor inertia, backlash, bus).
+flexibility estimates, and the hardware facts the repair's plausibility notes quote (gear ratio,
+rotor inertia, backlash, bus, torque interface).
 
 File format (every key optional except ``name``)::
 
@@ -29,9 +29,8 @@ File format (every key optional except ``name``)::
     bus: null                            # e.g. CAN
     bus_latency: null                    # s
     torque_limits: [31.2, 31.2]          # N m, physical actuator limits
-    sample_rate: 2500                    # Hz, the controller rate of the hardware
-    torque_interface: null               # link_side: the command is a link-side joint torque
-                                         # closed by the maker's torque loop (rotor, gears inside it)
+    torque_interface: null               # link_side (the command is a link-side joint torque closed
+                                         # by the maker's torque loop: rotor, gears inside it) | motor
     sample_rate: 2500                    # Hz, the controller rate of the hardware
     closed_form_regressor: d2r2          # the paper's regressor, whose parameters parameter_sets hold:
                                          # d2r2 (JS eq. 15, also a key of spong.CLOSED_FORM_SLOTINE_LI),
@@ -41,7 +40,7 @@ File format (every key optional except ``name``)::
     load_intervals:                      # name -> [low, high], the payload box (Monte Carlo)
       dm2: [0.0, 1.1841]
     controller_design:                   # published robust-control design (all keys optional)
-      K: [30.0, 10.0]                    # gain of the s = q~' + Lambda q~ loop
+      K: [30.0, 10.0]                    # N m s/rad, on r = q~' + Lambda q~ (JS eq. 11)
       Lambda: [50.0, 20.0]               # 1/s
       rho_sp1: 0.1062                    # SP1 bound ||theta - theta0||
       rho_sp2: [0.053, 0.075, 0.053]     # SP2 per-parameter bounds
