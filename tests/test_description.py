@@ -169,3 +169,18 @@ def test_lg_uses_the_robots_own_parameter_sets(tmp_path):
     np.testing.assert_allclose(lg.width, [0.2, 0.2, 0.1])
     np.testing.assert_allclose(lgp.theta_nom, [0.6, 0.2, 0.1])
     np.testing.assert_allclose(lgp.width, [0.1, 0.1, 0.05])
+
+
+def test_nonlinear_observer_takes_theta_from_the_description(tmp_path):
+    """The JS eq. 85 observer's inertia comes from the robot's eq. 14 theta0; an arm without one
+    is refused (it used to get the D2R2's silently)."""
+    from robust_drake.registry import BuildContext
+    from robust_drake.systems.nonlinear_observer import make_nonlinear
+
+    def ctx(robot):
+        return BuildContext(robot=robot, arm=None, load="none", n=2, period=4e-4, config=None)
+
+    assert make_nonlinear(ctx("d2r2")).theta == describe("d2r2").parameter_sets["theta0"]
+    with pytest.raises(RobustDrakeError, match="theta of JS eq. 14"):
+        make_nonlinear(ctx("imi_scara"))
+    assert tuple(make_nonlinear(ctx("imi_scara"), theta=(0.5, 0.1, 0.05)).theta) == (0.5, 0.1, 0.05)
