@@ -365,13 +365,15 @@ def run_montecarlo(robot: str = "d2r2", controllers: Sequence[str] = ("sp1", "sp
     import numpy as np
 
     from robust_drake import montecarlo as mc
+    from robust_drake.description import describe
 
-    if robot == "d2r2":
+    if describe(robot).load_intervals:  # a payload box in the robot's description (D2R2: JS eq. 93)
         if ellipsoid is not None:
-            raise RobustDrakeError("run_montecarlo: ellipsoid is for robot imi_scara; the D2R2 uses JS eq. 93")
+            raise RobustDrakeError(f"run_montecarlo: ellipsoid is for robot imi_scara; {robot} draws from the "
+                                   "load_intervals of its description (the D2R2: JS eq. 93)")
         thetas, deltas = mc.draw_d2r2(draws, seed=seed, corners=corners)
         tags = [{"dm2": float(d[0]), "dlc2": float(d[1]), "dI2": float(d[2])} for d in deltas]
-    elif robot == "imi_scara":
+    elif describe(robot).closed_form_regressor == "imi_scara":  # CI section 5 parameters
         if ellipsoid is None:
             raise RobustDrakeError("run_montecarlo: robot imi_scara needs ellipsoid (file or (theta0, P))")
         theta0, P = (mc.load_ellipsoid(ellipsoid) if isinstance(ellipsoid, (str, os.PathLike))

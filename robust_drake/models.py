@@ -17,9 +17,10 @@ environment variable ``ROBUST_DRAKE_MODELS``.  Conventions shared by all files:
 The named robots (:data:`ROBOTS`) are the robot descriptions shipped beside the URDFs
 (``robots/<name>.yaml``, :mod:`robust_drake.description`).
 
-D2R2 numbers (Jaritz & Spong, seeds/001, appendix): tables 8, 9, 11 and eq. 93.  The link
-lengths are not printed; see ``models/d2r2.urdf`` and BUILD_NOTES.md ("Models and regressors")
-for the derivation of l1 = l2 = 0.30 m.
+D2R2 numbers (Jaritz & Spong, seeds/001, appendix): tables 8, 9, 11 and eq. 93, kept in the
+robot's description ``robots/d2r2.yaml`` (the ``D2R2_*`` constants here are read from it).  The
+link lengths are not printed; see ``models/d2r2.urdf`` and BUILD_NOTES.md ("Models and
+regressors") for the derivation of l1 = l2 = 0.30 m.
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ from typing import Callable
 
 import numpy as np
 
-from robust_drake.description import packaged_descriptions
+from robust_drake.description import packaged_description, packaged_descriptions
 from robust_drake.errors import RobustDrakeError
 from robust_drake.robots_dir import MODELS_DIR, models_dir, packaged_models_dir  # noqa: F401  (re-exported)
 
@@ -78,7 +79,8 @@ class ArmSpec:
     torque_limits: tuple | None = None
 
 
-D2R2_TORQUE_LIMIT = 31.2  # N m, JS section 1 (+-8 V command, Compumotor DM1015-B)
+_D2R2 = packaged_description("d2r2")  # the one source of the D2R2 numbers below
+D2R2_TORQUE_LIMIT = _D2R2.torque_limits[0]  # N m, JS section 1 (+-8 V command, Compumotor DM1015-B)
 
 
 def _named_robots() -> dict[str, ArmSpec]:
@@ -248,12 +250,11 @@ def add_arm(builder, robot: str, load: str = "none", time_step: float = 0.0, *,
 
 
 # --------------------------------------------------------------------------- D2R2 (JS appendix)
-D2R2_THETA_UNLOADED = (0.678, 0.033, 0.029)  # table 8
-D2R2_THETA_LOADED = (0.784, 0.183, 0.135)  # table 9
-# Table 11.  Eq. 16 prints theta0 = 1/2 (theta_max - theta_unloaded), a typo for the mean
-# 1/2 (theta_max + theta_unloaded), which is what table 11 lists.
-D2R2_THETA0 = (0.731, 0.108, 0.082)
-D2R2_LOAD_INTERVALS = {"dm2": (0.0, 1.1841), "dlc2": (0.0, 0.0694), "dI2": (0.0, 0.109)}  # eq. 93
+# theta of eq. 14 (values and sources in robots/d2r2.yaml): table 8, table 9, table 11
+D2R2_THETA_UNLOADED = _D2R2.parameter_sets["unloaded"]
+D2R2_THETA_LOADED = _D2R2.parameter_sets["loaded"]
+D2R2_THETA0 = _D2R2.parameter_sets["theta0"]
+D2R2_LOAD_INTERVALS = dict(_D2R2.load_intervals)  # eq. 93
 
 
 def d2r2_theta(m1, lc1, I1, m2, lc2, I2, l1) -> np.ndarray:

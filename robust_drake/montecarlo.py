@@ -31,7 +31,7 @@ from typing import Iterable, Sequence
 
 import numpy as np
 
-from robust_drake.description import describe
+from robust_drake.description import describe, packaged_description
 from robust_drake.errors import RobustDrakeError
 from robust_drake.scenario import Scenario
 
@@ -162,8 +162,11 @@ def _imi_bodies(plant):
     return j1, j2, l1
 
 
+IMI_L1 = packaged_description("imi_scara").link_lengths[0]  # m, CI section 5 (robots/imi_scara.yaml)
+
+
 def imi_realisable(theta, m2: float = 4.0, m1: float = 12.0, lc1: float = 0.2, I1c: float = 0.13,
-                   l1: float = 0.359, min_central: float = 1e-4) -> bool:
+                   l1: float = IMI_L1, min_central: float = 1e-4) -> bool:
     """Can a rigid link 2 (mass >= m2, chosen freely upwards) and a link 1 plus a rotor with
     nonnegative inertia realise CI's inertial theta[0:4]? Needs Gamma2z > |m2 s2|^2 / m2 and
     Gamma1z-part theta[0] - m2 l1^2 - (I1c + m1 lc1^2) >= 0; and, for an 8-entry theta,
@@ -281,7 +284,7 @@ def montecarlo_scenarios(robot: str, controllers: Sequence[str], thetas,
                 d["tags"] = dict(tags[i])
             if describe(robot).closed_form_regressor == "d2r2":  # JS eq. 14 parameters
                 d["true_theta"] = [float(x) for x in th]
-            elif robot == "imi_scara":
+            elif describe(robot).closed_form_regressor == "imi_scara":  # CI section 5 parameters
                 extra = dict(d.get("extra", {}))
                 extra["plant_setup"] = [["robust_drake.montecarlo:set_imi_theta",
                                          {"theta": [float(x) for x in th[:4]]}]]
@@ -291,7 +294,8 @@ def montecarlo_scenarios(robot: str, controllers: Sequence[str], thetas,
                 d["extra"] = extra
                 d["tags"] = {**d.get("tags", {}), "theta": [float(x) for x in th]}
             else:
-                raise RobustDrakeError(f"Monte Carlo draws are defined for d2r2 and imi_scara, not {robot!r}")
+                raise RobustDrakeError(f"Monte Carlo draws are defined for robots with the JS eq. 14 or CI section 5 "
+                                       f"parameters in their description (d2r2, imi_scara), not {robot!r}")
             out.append(Scenario.from_dict(d))
     return out
 

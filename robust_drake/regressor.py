@@ -52,6 +52,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from robust_drake.description import packaged_description
 from robust_drake.errors import RobustDrakeError
 
 __all__ = [
@@ -94,11 +95,11 @@ def d2r2_regressor(q, qd, v, a) -> np.ndarray:
     return Y
 
 
-IMI_L1 = 0.359  # m, CI section 5
-IMI_L2 = 0.24  # m
+_IMI = packaged_description("imi_scara")  # robots/imi_scara.yaml, the one source of these numbers
+IMI_L1, IMI_L2 = _IMI.link_lengths  # m, CI section 5
 #: CI section 5.1 central estimate: [Gamma1z + m2 l1^2, m2 s2x, m2 s2y, Gamma2z,
 #: sigma_s1, sigma_v1, sigma_s2, sigma_v2] (SI units).
-IMI_THETA0 = np.array([4.69, -0.4, 0.65, -0.09, 1.4, 12.12, 1.9, -0.24])
+IMI_THETA0 = np.array(_IMI.parameter_sets["theta0"])
 IMI_THETA_NAMES = (
     "Gamma1z+m2*l1^2", "m2*s2x", "m2*s2y", "Gamma2z", "sigma_s1", "sigma_v1", "sigma_s2", "sigma_v2",
 )

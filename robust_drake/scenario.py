@@ -55,11 +55,28 @@ __all__ = [
     "validate_scenarios",
 ]
 
-#: Fields of ClosedLoopConfig a scenario may set through ``extra`` (everything plain-data).
-_CONFIG_EXTRA = {
-    "compensation_params", "encoder_resolution", "torque_limit", "metrics_skip", "metrics_dt",
-    "initial_q", "effects", "plant_friction", "plant_setup",
-}
+def _copy(v):
+    """A copy of plain data (dicts and lists are copied one level deep)."""
+    return dict(v) if isinstance(v, dict) else list(v) if isinstance(v, (list, tuple)) else v
+
+
+def _floats_or_none(v):
+    return None if v is None else [float(x) for x in v]
+
+
+def _float_or_none(v):
+    return None if v is None else float(v)
+
+
+#: Conversions of Scenario fields copied to ClosedLoopConfig (plain data -> the config's types).
+_TO_CONFIG = {"rate": float, "duration": _float_or_none, "true_theta": _floats_or_none,
+              "friction_compensation": bool}
+#: Scenario fields named like a ClosedLoopConfig field that are not copied (the seed goes on
+#: only when the config has one, below).
+_NOT_COPIED = {"seed"}
+#: Conversions of ``extra`` entries: serialisable forms of ClosedLoopConfig fields.
+_EXTRA_TO_CONFIG = {"effects": lambda v: [tuple(e) for e in v],
+                    "plant_setup": lambda v: [_plant_setup_callable(e) for e in v]}
 
 
 @dataclass
@@ -143,31 +160,27 @@ class Scenario:
 
     # ------------------------------------------------------------------ to the builder
     def to_config(self):
-        """The :class:`robust_drake.diagram.ClosedLoopConfig` of this scenario."""
+        """The :class:`robust_drake.diagram.ClosedLoopConfig` of this scenario.
+
+        Derived from the two dataclasses' fields: every field both have is copied (through
+        :data:`_TO_CONFIG` where a plain-data form needs converting); ``extra`` may set any other
+        ClosedLoopConfig field (``effects`` pairs become tuples, ``plant_setup`` entries
+        callables); ``friction: false`` means ``plant_friction=None``; the seed is passed on when
+        the config has one.  A new ClosedLoopConfig field is thus reachable from scenarios as is."""
         from robust_drake.diagram import ClosedLoopConfig
 
-        kwargs = dict(
-            robot=self.robot, load=self.load, controller=self.controller,
-            controller_params=dict(self.controller_params), trajectory=self.trajectory,
-            trajectory_params=dict(self.trajectory_params), rate=float(self.rate),
-            observer=self.observer, observer_params=dict(self.observer_params),
-            friction_compensation=bool(self.friction_compensation),
-            duration=None if self.duration is None else float(self.duration),
-            true_theta=None if self.true_theta is None else [float(x) for x in self.true_theta],
-        )
+        config_fields = {f.name for f in fields(ClosedLoopConfig)}
+        shared = config_fields & {f.name for f in fields(self)} - _NOT_COPIED
+        kwargs = {k: _TO_CONFIG.get(k, _copy)(getattr(self, k)) for k in shared}
         if not self.friction:
             kwargs["plant_friction"] = None
-        config_fields = set(getattr(ClosedLoopConfig, "__dataclass_fields__", {}))
+        allowed = config_fields - shared - _NOT_COPIED
         for k, v in self.extra.items():
-            if k not in config_fields or k in kwargs and k != "plant_friction":
+            if k not in allowed:
                 raise RobustDrakeError(
                     f"scenario extra field {k!r} is not a ClosedLoopConfig option; "
-                    f"allowed: {sorted(_CONFIG_EXTRA & config_fields)}")
-            if k == "effects":
-                v = [tuple(e) for e in v]
-            elif k == "plant_setup":
-                v = [_plant_setup_callable(e) for e in v]
-            kwargs[k] = v
+                    f"allowed: {sorted(allowed)}")
+            kwargs[k] = _EXTRA_TO_CONFIG.get(k, _copy)(v)
         if "seed" in config_fields:  # if the builder grows randomness it gets the seed
             kwargs["seed"] = int(self.seed)
         return ClosedLoopConfig(**kwargs)

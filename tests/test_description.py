@@ -120,3 +120,67 @@ def test_every_shipped_description_matches_its_urdf(robot):
 def test_bad_description_is_a_user_error(tmp_path, bad, match):
     with pytest.raises(RobustDrakeError, match=match):
         describe(_user_arm(tmp_path, bad))
+
+
+def test_link_side_torque_interface_is_a_fact_not_a_gap(tmp_path):
+    """The Panda's null gear ratio and rotor inertia are declared (commands are link-side joint
+    torques); a fitted rotor inertia on such an arm is flagged, on a motor-side arm it is not."""
+    from robust_drake.model_repair.pipeline import plausibility
+
+    d = describe("panda")
+    assert d.torque_interface == "link_side" and d.gear_ratio is None and d.rotor_inertia is None
+    assert "link-side torques" in plausibility("rotor_inertia", {"reflected_inertia": 0.01}, "panda")
+    assert "link-side" not in plausibility("rotor_inertia", {"reflected_inertia": 0.01}, _user_arm(tmp_path))
+    with pytest.raises(RobustDrakeError, match="torque_interface"):
+        (tmp_path / "bad").mkdir()
+        describe(_user_arm(tmp_path / "bad", "name: x\ntorque_interface: sideways\n"))
+
+
+def test_zc_takes_published_bounds_from_the_description_not_the_name(tmp_path):
+    """A user's arm whose description publishes ZC bounds and gains gets them (no box search,
+    uncertainty None) and refuses a box request; the D2R2 gets its file's values."""
+    from robust_drake.registry import BuildContext
+    from robust_drake.systems.controllers.zenieh_corless import make_zc
+
+    design = "controller_design: {K: [7.0, 3.0], Lambda: [9.0, 4.0], zc_beta: [0.01, 0.9, 0.2]}\n"
+    path = _user_arm(tmp_path, "name: my_arm\nn: 2\n" + design)
+    ctx = BuildContext(robot=path, arm=None, load="none", n=2, period=4e-4, config=None)
+    c = make_zc(ctx, epsilon=10.0)
+    assert (c.beta1, c.beta2, c.K, c.Lambda, c.uncertainty) == (0.9, 0.2, (7.0, 3.0), (9.0, 4.0), None)
+    with pytest.raises(RobustDrakeError, match="rel_bound/abs_bound"):
+        make_zc(ctx, rel_bound=0.1)
+    # the D2R2 by name: JS appendix 12.2 and section 8, the values of its file
+    d = describe("d2r2").controller_design
+    c = make_zc(BuildContext(robot="d2r2", arm=None, load="none", n=2, period=4e-4, config=None))
+    assert (c.beta1, c.beta2, c.K, c.Lambda) == (d.zc_beta[1], d.zc_beta[2], d.K, d.Lambda)
+
+
+def test_lg_uses_the_robots_own_parameter_sets(tmp_path):
+    """LG / LG+ take theta_nom and the width from the robot's parameter sets (JS eqs. 44-46),
+    the user's arm's own, not the D2R2's tables."""
+    from robust_drake.registry import BuildContext
+    from robust_drake.systems.controllers.liu_goldenberg import make_lg, make_lgplus
+
+    sets = "closed_form_regressor: d2r2\nparameter_sets: {unloaded: [0.5, 0.1, 0.05], loaded: [0.7, 0.3, 0.15]}\n"
+    ctx = BuildContext(robot=_user_arm(tmp_path, "name: my_arm\nn: 2\n" + sets), arm=None, load="none",
+                       n=2, period=4e-4, config=None)
+    lg, lgp = make_lg(ctx), make_lgplus(ctx)
+    np.testing.assert_allclose(lg.theta_nom, [0.5, 0.1, 0.05])
+    np.testing.assert_allclose(lg.width, [0.2, 0.2, 0.1])
+    np.testing.assert_allclose(lgp.theta_nom, [0.6, 0.2, 0.1])
+    np.testing.assert_allclose(lgp.width, [0.1, 0.1, 0.05])
+
+
+def test_nonlinear_observer_takes_theta_from_the_description(tmp_path):
+    """The JS eq. 85 observer's inertia comes from the robot's eq. 14 theta0; an arm without one
+    is refused (it used to get the D2R2's silently)."""
+    from robust_drake.registry import BuildContext
+    from robust_drake.systems.nonlinear_observer import make_nonlinear
+
+    def ctx(robot):
+        return BuildContext(robot=robot, arm=None, load="none", n=2, period=4e-4, config=None)
+
+    assert make_nonlinear(ctx("d2r2")).theta == describe("d2r2").parameter_sets["theta0"]
+    with pytest.raises(RobustDrakeError, match="theta of JS eq. 14"):
+        make_nonlinear(ctx("imi_scara"))
+    assert tuple(make_nonlinear(ctx("imi_scara"), theta=(0.5, 0.1, 0.05)).theta) == (0.5, 0.1, 0.05)

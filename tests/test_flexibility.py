@@ -347,4 +347,4 @@ def test_simulate_flexible_refuses_robots_without_parameters(capsys):
     from robust_drake.cli import main
 
     assert main(["simulate", "--robot", "imi_scara", "--flexible", "--duration", "0.1"]) == 2
-    assert "D2R2 only" in capsys.readouterr().err
+    assert "needs flexibility parameters in the robot's description" in capsys.readouterr().err

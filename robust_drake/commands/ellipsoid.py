@@ -83,7 +83,9 @@ def check_save_path(path) -> None:
 def run(args) -> int:
     from robust_drake.experiments.calafiore import run_ellipsoid_experiment
 
-    if args.robot != "imi_scara":
+    from robust_drake.description import describe
+
+    if describe(args.robot).closed_form_regressor != "imi_scara":
         raise RobustDrakeError(f"ellipsoid: only robot imi_scara has the section 5 regressor (got {args.robot!r})")
     if args.samples < 1:
         raise RobustDrakeError("--samples must be >= 1")

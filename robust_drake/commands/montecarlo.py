@@ -72,7 +72,9 @@ def run(args) -> int:
     if args.draws < 1 and not args.corners:
         raise RobustDrakeError("--draws must be >= 1")
     rejected = 0
-    if args.robot == "d2r2":
+    from robust_drake.description import describe
+
+    if describe(args.robot).load_intervals:  # the payload box of the description (D2R2: JS eq. 93)
         if args.ellipsoid:
             raise RobustDrakeError("--ellipsoid is for --robot imi_scara; the D2R2 uses eq. 93")
         thetas, deltas = draw_d2r2(args.draws, seed=args.seed, corners=args.corners)

@@ -50,11 +50,12 @@ def run(args) -> int:
     if args.flexible:
         from robust_drake.description import describe
 
-        if describe(args.robot).flexibility != "d2r2":
-            raise RobustDrakeError("--flexible has parameters for the D2R2 only (use ClosedLoopConfig.flexibility for other arms)")
+        if describe(args.robot).flexibility is None:
+            raise RobustDrakeError(f"--flexible needs flexibility parameters in the robot's description; {args.robot!r} "
+                                   "has none (the D2R2 has; use ClosedLoopConfig.flexibility for other arms)")
         from robust_drake.systems.flexibility import d2r2_flexibility
 
-        flex = d2r2_flexibility(args.load)
+        flex = d2r2_flexibility(args.load, robot=args.robot)
     skip = args.skip if args.skip is not None else (1.0 if args.trajectory == "circle" else 0.0)
     cfg = ClosedLoopConfig(robot=args.robot, load=args.load, controller=args.controller,
                            trajectory=args.trajectory, observer=args.observer, rate=args.rate,

@@ -154,13 +154,15 @@ def set_imi_theta(plant, context, theta) -> None:
 def physical_boundary_points(ell, count: int, rng, max_tries: int = 200000) -> np.ndarray:
     """Points theta0 + E z, ||z|| = 1, that the IMI plant can realise: Gamma2z > 0.005, link 2's
     mass (raised if needed, see set_imi_theta) compatible with theta1, friction >= 0."""
+    from robust_drake.regressor import IMI_L1
+
     out = []
     tries = 0
     while len(out) < count and tries < max_tries:
         P = ell.boundary_points(1000, rng)
         tries += 1000
         m2 = np.maximum(4.0, 2.0 * (P[:, 1] ** 2 + P[:, 2] ** 2) / np.maximum(P[:, 3], 1e-9))
-        ok = ((P[:, 3] > 0.005) & (P[:, 0] - 0.62 - m2 * 0.359 ** 2 > 0.05) & np.all(P[:, 4:] >= 0, axis=1))
+        ok = ((P[:, 3] > 0.005) & (P[:, 0] - 0.62 - m2 * IMI_L1 ** 2 > 0.05) & np.all(P[:, 4:] >= 0, axis=1))
         out.extend(P[ok][: count - len(out)])
     if len(out) < count:
         raise RobustDrakeError(f"found only {len(out)} physically realisable points on the ellipsoid boundary")

@@ -35,14 +35,17 @@ from __future__ import annotations
 import os
 
 
+from robust_drake.description import packaged_description
 from robust_drake.errors import RobustDrakeError
 
+_D2R2 = packaged_description("d2r2")
 TRUE_EFFECT = ("position_dependent", 1, {"amplitude": 0.6, "phase": 0.5, "harmonic": 4})
 #: the demo arm's Coulomb / viscous friction [N m], [N m s/rad] (see the module docstring)
 DEMO_COULOMB = (0.1, 0.2)
-DEMO_VISCOUS = (0.15, 0.08)
-#: excitation of the identification experiment (``simulated.simulate_experiment``)
-DEMO_EXCITATION = {"torque_limit": 31.2, "bandwidth_hz": 8.0}
+DEMO_VISCOUS = tuple(_D2R2.plant_friction["viscous"])  # the D2R2's (robots/d2r2.yaml)
+#: excitation of the identification experiment (``simulated.simulate_experiment``); the D2R2's
+#: torque limit, 31.2 N m
+DEMO_EXCITATION = {"torque_limit": _D2R2.torque_limits[0], "bandwidth_hz": 8.0}
 
 
 def truth() -> dict:

@@ -92,6 +92,9 @@ def plausibility(kind: str, params: dict, robot: str) -> str:
             m, e = f"{hw.rotor_inertia:.3g}".partition("e")[::2]
             ir = f"{m}e{int(e)}" if e else m
             txt += f" ({motor}: gr^2 Ir = {gr2:g} x {ir} = {gr2 * hw.rotor_inertia:.3g} kg m^2)"
+        elif hw.torque_interface == "link_side":
+            txt += ("; NOTE: the commands are link-side torques closed on joint torque sensors (robot "
+                    "description), so the rotors sit inside the maker's torque loop: look for a link-inertia error")
         return txt
     backlash = "" if hw.backlash_deg is None else f"(about {hw.backlash_deg:g} deg on the {motor}) "
     if kind in ("stribeck", "smooth_coulomb", "asymmetric_coulomb"):

@@ -27,6 +27,7 @@ import tempfile
 import numpy as np
 from pydrake.systems.framework import LeafSystem
 
+from robust_drake.description import packaged_description
 from robust_drake.errors import RobustDrakeError
 from robust_drake.model_repair.simulated import PeriodicDisturbance, simulate_experiment
 
@@ -141,7 +142,7 @@ def outside_case(case: str, robot: str = "dfki_double_pendulum_a0", seed: int = 
 ARMS["puma560_3link"] = dict(effect_scale=40.0, coulomb=(0.5, 0.3, 0.2), viscous=(0.2, 0.2, 0.1),
                              torque_noise_std=0.05,
                              excitation=dict(amplitude=(1.0, 1.0, 1.0), offset=(0.0, -0.8, 0.8),
-                                             torque_limit=(97.6, 186.4, 89.4)))
+                                             torque_limit=packaged_description("puma560_3link").torque_limits))
 
 
 def _reflected_inertias(robot) -> list[float]:

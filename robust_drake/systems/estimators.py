@@ -32,10 +32,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from robust_drake.description import packaged_description
 from robust_drake.errors import RobustDrakeError
 
-#: D2R2 encoder interpulse angle, JS eq. 70: 2 pi / 655360 rad.
-THETA_M = 2.0 * np.pi / 655360.0
+#: D2R2 encoder interpulse angle, JS eq. 70: 2 pi / (counts per revolution) rad (robots/d2r2.yaml).
+THETA_M = packaged_description("d2r2").encoder_resolution
 
 
 # ---------------------------------------------------------------------------------------------

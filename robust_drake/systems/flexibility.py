@@ -52,6 +52,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from robust_drake.description import describe, packaged_description
 from robust_drake.errors import RobustDrakeError
 
 
@@ -214,19 +215,24 @@ def as_flexibility(x) -> FlexibilityConfig | None:
 
 
 # ------------------------------------------------------------------------------ D2R2 parameters
-#: Physical estimates for the D2R2 (BUILD_NOTES.md "Flexible D2R2"; never fitted to the tables).
-D2R2_ROTOR_INERTIA = (0.02, 0.02)  # kg m^2, ~2.2 kg rotor ring at ~95 mm radius (BUILD_NOTES)
-D2R2_DRIVE_STIFFNESS = (5.0e4, 5.0e4)  # N m/rad, rotor hub + clamp to the aluminium link
-D2R2_DRIVE_ZETA = 0.02  # bolted steel/aluminium joint
-D2R2_LINK2_EI = 7.1e3  # N m^2, 40 x 40 x 3 mm aluminium box tube, E = 70 GPa
-D2R2_LINK2_BEAM_MASS = 0.36  # kg, that tube, 0.3 m long (2700 kg/m^3)
-D2R2_PAYLOAD_IP = 0.044566  # kg m^2, the payload's own inertia (BUILD_NOTES "D2R2")
-D2R2_MODE_ZETA = 0.01  # lightly damped aluminium structure
-D2R2_L2 = 0.30  # m
+#: Physical estimates for the D2R2 (robots/d2r2.yaml ``flexibility``, reasons in BUILD_NOTES.md
+#: "Flexible D2R2"; never fitted to the tables).  Module names kept for readers and tests.
+_D2R2 = packaged_description("d2r2")
+D2R2_ROTOR_INERTIA = _D2R2.flexibility["rotor_inertia"]  # kg m^2
+D2R2_DRIVE_STIFFNESS = _D2R2.flexibility["drive_stiffness"]  # N m/rad
+D2R2_DRIVE_ZETA = _D2R2.flexibility["drive_zeta"]
+D2R2_LINK2_EI = _D2R2.flexibility["last_link_EI"]  # N m^2
+D2R2_LINK2_BEAM_MASS = _D2R2.flexibility["last_link_beam_mass"]  # kg
+D2R2_PAYLOAD_IP = _D2R2.flexibility["payload_inertia"]  # kg m^2
+D2R2_MODE_ZETA = _D2R2.flexibility["mode_zeta"]
+D2R2_L2 = _D2R2.link_lengths[1]  # m
 
 
-def d2r2_flexibility(load: str = "none", encoder: str = "motor", drive: bool = True, mode: bool = True) -> FlexibilityConfig:
-    """Two-mass drives on both joints + the first bending mode of link 2 (F1-F5), D2R2 numbers.
+def d2r2_flexibility(load: str = "none", encoder: str = "motor", drive: bool = True, mode: bool = True,
+                     robot="d2r2") -> FlexibilityConfig:
+    """Two-mass drives on both joints + the first bending mode of link 2 (F1-F5), with the
+    numbers of ``robot``'s description (``flexibility``, ``parameter_sets`` unloaded/loaded of
+    JS eq. 14, ``link_lengths``): the D2R2's by default, or any 2-link arm described the same way.
 
     Link-2 bending: cantilever stiffness at the hub k_s = 3 EI / l2; modal inertia J_s = 0.24 m_beam
     l2^2 (Rayleigh's tip-mass equivalent, expressed as inertia about the joint) plus, loaded, the
@@ -234,22 +240,28 @@ def d2r2_flexibility(load: str = "none", encoder: str = "motor", drive: bool = T
     The rigid plant gives up J_m1 from theta1 and J_m2 + J_s from theta2 (eq. 14), so the rigid
     limit keeps the table 8/9 inertias on the diagonal.
     """
-    J_m = list(D2R2_ROTOR_INERTIA) if drive else None
-    k = list(D2R2_DRIVE_STIFFNESS) if drive else None
+    desc = describe(robot)
+    f = desc.flexibility
+    if f is None or desc.n != 2 or not {"unloaded", "loaded"} <= set(desc.parameter_sets):
+        raise RobustDrakeError(f"robot {desc.name!r}: the flexible model needs a 2-link description with "
+                               "'flexibility' and JS eq. 14 parameter_sets unloaded/loaded (the D2R2 has them)")
+    J_m = list(f["rotor_inertia"]) if drive else None
+    k = list(f["drive_stiffness"]) if drive else None
     modes = []
     dec = np.zeros(3)
-    theta = (0.678, 0.033) if load == "none" else (0.784, 0.183)  # tables 8/9: d22 = theta2
-    J_s = 0.24 * D2R2_LINK2_BEAM_MASS * D2R2_L2 ** 2 + (D2R2_PAYLOAD_IP if load != "none" else 0.0)
+    theta = desc.parameter_sets["unloaded" if load == "none" else "loaded"]  # tables 8/9: d22 = theta2
+    L2 = desc.link_lengths[1]
+    J_s = 0.24 * f["last_link_beam_mass"] * L2 ** 2 + (f["payload_inertia"] if load != "none" else 0.0)
     if mode:
-        k_s = 3.0 * D2R2_LINK2_EI / D2R2_L2
-        modes.append(StructuralMode(joint=1, J_s=J_s, omega=math.sqrt(k_s / J_s), zeta=D2R2_MODE_ZETA))
+        k_s = 3.0 * f["last_link_EI"] / L2
+        modes.append(StructuralMode(joint=1, J_s=J_s, omega=math.sqrt(k_s / J_s), zeta=f["mode_zeta"]))
         dec[1] += J_s
     d = None
     J_l = None
     if drive:
         # link inertias the rotors see (joint 1: d11 at q2 = 90 deg, theta1 + theta2; joint 2: d22)
         J_l = [theta[0] + theta[1] - J_m[0] - J_m[1] - (J_s if mode else 0.0), theta[1] - J_m[1] - (J_s if mode else 0.0)]
-        d = [float(x) for x in drive_damping(np.asarray(k), np.asarray(J_m), np.asarray(J_l), D2R2_DRIVE_ZETA)]
+        d = [float(x) for x in drive_damping(np.asarray(k), np.asarray(J_m), np.asarray(J_l), f["drive_zeta"])]
         dec[0] += J_m[0]
         dec[1] += J_m[1]
     return FlexibilityConfig(J_m=J_m, k=k, d=d, modes=modes, encoder=encoder if drive else "link",

@@ -21,15 +21,16 @@ from pydrake.systems.framework import LeafSystem
 
 from pydrake.symbolic import MakeVectorVariable
 
+from robust_drake.description import packaged_description
 from robust_drake.errors import RobustDrakeError
 from robust_drake.systems.compiled import SymbolicBlock
 
-# Plant friction of the simulated D2R2 (our choice; JS section 7 says only that k2 is about
-# twice k1, that the compensation k_hat = (1, 2) N m captures most of it, and that the
-# viscous part is small at the speeds used). See BUILD_NOTES.md.
-D2R2_COULOMB = (1.2, 2.3)  # N m
-D2R2_VISCOUS = (0.15, 0.08)  # N m s / rad
-D2R2_K_HAT = (1.0, 2.0)  # JS section 9, eq. 90
+# Plant friction of the simulated D2R2 (our choice, reasons in robots/d2r2.yaml and
+# BUILD_NOTES.md) and the fixed compensation of JS section 9, eq. 90: read from the description.
+_D2R2 = packaged_description("d2r2")
+D2R2_COULOMB = tuple(_D2R2.plant_friction["coulomb"])  # N m
+D2R2_VISCOUS = tuple(_D2R2.plant_friction["viscous"])  # N m s / rad
+D2R2_K_HAT = _D2R2.friction_compensation_k_hat  # N m
 
 
 def coulomb_viscous_force(qd, coulomb, viscous, v_eps=None) -> np.ndarray:

@@ -24,10 +24,11 @@ import math
 
 import numpy as np
 
+from robust_drake.description import packaged_description
 from robust_drake.errors import RobustDrakeError
 
-#: JS table 11, nominal D2R2 parameter vector (eq. 14).
-THETA0_TABLE11 = (0.731, 0.108, 0.082)
+#: JS table 11, nominal D2R2 parameter vector (eq. 14), from robots/d2r2.yaml.
+THETA0_TABLE11 = packaged_description("d2r2").parameter_sets["theta0"]
 
 
 def d2r2_inertia(q2: float, theta) -> tuple[float, float, float]:
@@ -130,8 +131,15 @@ class NonlinearVelocityObserver(DiscreteObserver):
 
 
 def make_nonlinear(ctx, L1=3000.0, L2=2.25e6, theta=None):
-    """Registry factory ``nonlinear``; ``M`` from the nominal parameters (table 11, the centre
-    of the uncertainty interval) unless ``theta`` is given."""
+    """Registry factory ``nonlinear``; ``M`` from the robot's nominal parameters of JS eq. 14
+    (its description's ``theta0``; the D2R2's is table 11, the centre of the uncertainty
+    interval) unless ``theta`` is given."""
     if theta is None:
-        from robust_drake.models import D2R2_THETA0 as theta
+        from robust_drake.description import describe
+
+        d = describe(ctx.robot)
+        if d.closed_form_regressor != "d2r2" or "theta0" not in d.parameter_sets:
+            raise RobustDrakeError(f"the nonlinear observer needs the arm's theta of JS eq. 14; robot {ctx.robot!r} "
+                                   "has none in its description: pass observer_params theta=(th1, th2, th3)")
+        theta = d.parameter_sets["theta0"]
     return NonlinearVelocityObserver(ctx.n, ctx.period, L1=L1, L2=L2, theta=theta)

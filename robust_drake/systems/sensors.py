@@ -12,11 +12,13 @@ import math
 import numpy as np
 from pydrake.systems.framework import LeafSystem
 
+from robust_drake.description import packaged_description
 from robust_drake.errors import RobustDrakeError
 from robust_drake.systems.compiled import SymbolicBlock
 
-D2R2_COUNTS_PER_REV = 655360
-D2R2_THETA_M = 2.0 * math.pi / D2R2_COUNTS_PER_REV  # 9.5874e-6 rad, JS eq. 70
+# the D2R2's encoder, from robots/d2r2.yaml (simulation.encoder_counts_per_rev)
+D2R2_THETA_M = packaged_description("d2r2").encoder_resolution  # 9.5874e-6 rad, JS eq. 70
+D2R2_COUNTS_PER_REV = round(2.0 * math.pi / D2R2_THETA_M)
 
 
 def quantize(q, theta_m: float) -> np.ndarray:

@@ -45,7 +45,8 @@ from robust_drake.errors import RobustDrakeError
 from robust_drake.systems.controllers.base import DiscreteController, diag_gain
 
 DEFAULT_PERTURBATION = {"link1": 1.2, "link2": 1.2}
-#: The case-study arm keeps BR section V's constant M_hat = diag(M(0)); other arms use M_hat(q).
+#: The case-study arm (its description says ``controller_design.br_mass_model: diag_q0``) keeps BR
+#: section V's constant M_hat = diag(M(0)); other arms use M_hat(q).
 CASE_STUDY_ROBOT = "siciliano_2link"
 
 
@@ -192,7 +193,9 @@ def case_study_design(robot="siciliano_2link", trajectory="line", trajectory_par
     perturbation = default_perturbation(robot, load) if perturbation is None else dict(perturbation)
     trajectory_params = dict(trajectory_params or {})
     if mass_model is None:
-        mass_model = "diag_q0" if robot == CASE_STUDY_ROBOT else "model"
+        from robust_drake.description import describe
+
+        mass_model = describe(robot).controller_design.br_mass_model or "model"
     if mass_model not in ("diag_q0", "model"):
         raise RobustDrakeError(f"mass_model must be 'diag_q0' or 'model' (got {mass_model!r})")
     key = repr((robot, load, trajectory, sorted(trajectory_params.items()), np.asarray(K_P).tolist(),

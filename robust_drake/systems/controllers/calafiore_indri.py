@@ -33,13 +33,16 @@ import math
 import numpy as np
 
 from robust_drake.analysis.tolerance import psd_tol
+from robust_drake.description import describe, packaged_description
 from robust_drake.errors import RobustDrakeError
 from robust_drake.systems.controllers.base import DiscreteController, diag_gain
 
-#: Gains used for the CI section 5.2 study (the paper does not print its K, Lambda).
-IMI_K = (20.0, 2.0)
-IMI_LAMBDA = (10.0, 10.0)
-IMI_L1 = 0.359
+#: Gains used for the CI section 5.2 study (the paper does not print its K, Lambda), and the
+#: IMI SCARA's l1: from robots/imi_scara.yaml.
+_IMI = packaged_description("imi_scara")
+IMI_K = _IMI.controller_design.K
+IMI_LAMBDA = _IMI.controller_design.Lambda
+IMI_L1 = _IMI.link_lengths[0]
 
 
 def imi_scara_control_regressor(q, qd, v, a, l1: float = IMI_L1) -> list:
@@ -241,7 +244,7 @@ def _make(ctx, robust, params):
     p = dict(params)
     reg = p.pop("regressor", None)
     if reg is None:
-        if ctx.robot != "imi_scara":
+        if describe(ctx.robot).closed_form_regressor != "imi_scara":  # CI section 5 model
             return _make_any_arm(ctx, robust, p)
         reg = imi_scara_control_regressor
     if "theta0" not in p:
@@ -257,7 +260,7 @@ def _make(ctx, robust, params):
         p.pop("P", None)
         p["E"] = np.zeros((len(p["theta0"]), len(p["theta0"])))
     c = CalafioreIndriController(ctx.n, ctx.period, reg, robust=robust, **p)
-    if "theta0" in params or ctx.robot == "imi_scara":
+    if "theta0" in params or describe(ctx.robot).closed_form_regressor == "imi_scara":
         c.uncertainty = {"kind": "ellipsoid", "source": "CI section 5.1" if "P" not in params else "user P",
                          "theta0": np.asarray(p["theta0"], float).tolist()}
         c.rho = float(np.linalg.norm(c.E, 2)) if robust else None

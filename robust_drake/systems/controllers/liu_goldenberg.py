@@ -34,11 +34,12 @@ from __future__ import annotations
 
 import math
 
+from robust_drake.description import packaged_description
 from robust_drake.errors import RobustDrakeError
 from robust_drake.systems.controllers.base import DiscreteController, diag_gain
 
-K_DEFAULT = (30.0, 10.0)
-LAMBDA_DEFAULT = (50.0, 20.0)
+K_DEFAULT = packaged_description("d2r2").controller_design.K  # JS section 8 (robots/d2r2.yaml)
+LAMBDA_DEFAULT = packaged_description("d2r2").controller_design.Lambda
 EPSILON_M_CPT, EPSILON_C_CPT = 1.5, 1.0
 EPSILON_M_CIRCLE, EPSILON_C_CIRCLE = 20.0, 2.5
 
@@ -130,10 +131,12 @@ class LiuGoldenbergController(DiscreteController):
                          self.K, self.Lambda, self.eps_M, self.eps_C)
 
 
-def _paper_thetas():
-    from robust_drake import models
+def _paper_thetas(ctx):
+    """The unloaded and loaded parameter sets of the robot's description (D2R2: JS tables 8, 9)."""
+    from robust_drake.description import describe
 
-    return models.D2R2_THETA_UNLOADED, models.D2R2_THETA_LOADED, models.D2R2_THETA0
+    sets = describe(ctx.robot).parameter_sets
+    return sets["unloaded"], sets["loaded"]
 
 
 def _require_d2r2(ctx, name):
@@ -153,7 +156,7 @@ def make_lg(ctx, **params):
     """Registry factory ``lg``: Liu & Goldenberg's original choice, nominal = unloaded arm."""
     if "theta_nom" not in params or "width" not in params:
         _require_d2r2(ctx, "LG")
-        lo, hi, _ = _paper_thetas()
+        lo, hi = _paper_thetas(ctx)
         params.setdefault("theta_nom", tuple(lo))
         params.setdefault("width", tuple(h - l for h, l in zip(hi, lo)))
     return LiuGoldenbergController(ctx.n, ctx.period, name="LG", **params)
@@ -163,7 +166,7 @@ def make_lgplus(ctx, **params):
     """Registry factory ``lgplus``: JS's LG+, nominal at the centre of the interval."""
     if "theta_nom" not in params or "width" not in params:
         _require_d2r2(ctx, "LG+")
-        lo, hi, _ = _paper_thetas()
+        lo, hi = _paper_thetas(ctx)
         params.setdefault("theta_nom", tuple((h + l) / 2 for h, l in zip(hi, lo)))
         params.setdefault("width", tuple((h - l) / 2 for h, l in zip(hi, lo)))
     return LiuGoldenbergController(ctx.n, ctx.period, name="LG+", **params)

@@ -39,14 +39,17 @@ import numpy as np
 from pydrake.systems.framework import Diagram, DiagramBuilder
 from pydrake.systems.primitives import Multiplexer
 
+from robust_drake.description import packaged_description
 from robust_drake.errors import RobustDrakeError
 from robust_drake.systems.controllers.base import DiscreteController, diag_gain
 
-# JS appendix 12.1 / table 10 / table 1 / section 8
-D2R2_RHO_SP1 = 0.1062
-D2R2_RHO_SP2 = (0.053, 0.075, 0.053)
-D2R2_K = (30.0, 10.0)
-D2R2_LAMBDA = (50.0, 20.0)
+# JS appendix 12.1 / table 10 / section 8, from the D2R2's description (robots/d2r2.yaml)
+_D2R2_DESIGN = packaged_description("d2r2").controller_design
+D2R2_RHO_SP1 = _D2R2_DESIGN.rho_sp1
+D2R2_RHO_SP2 = _D2R2_DESIGN.rho_sp2
+D2R2_K = _D2R2_DESIGN.K
+D2R2_LAMBDA = _D2R2_DESIGN.Lambda
+# JS table 1
 EPSILON_SP1 = 1.0
 EPSILON_SP2 = 0.5
 

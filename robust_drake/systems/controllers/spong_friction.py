@@ -26,6 +26,7 @@ import math
 
 import numpy as np
 
+from robust_drake.description import packaged_description
 from robust_drake.errors import RobustDrakeError
 from robust_drake.systems.controllers.base import DiscreteController
 from robust_drake.systems.controllers.spong import (
@@ -40,8 +41,8 @@ from robust_drake.systems.controllers.spong import (
     d2r2_regressor_single,
 )
 
-K_HAT = (1.0, 2.0)  # JS section 9, k1_hat, k2_hat [N m]
-RHO_K = (0.5, 1.0)  # our choice: |k - k_hat| <= k_hat / 2
+K_HAT = packaged_description("d2r2").friction_compensation_k_hat  # JS section 9, k1_hat, k2_hat [N m]
+RHO_K = tuple(0.5 * k for k in K_HAT)  # our choice: |k - k_hat| <= k_hat / 2
 
 
 def _sgn(x: float) -> float:

@@ -21,14 +21,15 @@ import math
 
 import numpy as np
 
+from robust_drake.description import describe, packaged_description
 from robust_drake.errors import RobustDrakeError
 from robust_drake.systems.controllers.base import DiscreteController, diag_gain
 
-BETA0 = 0.0276
-BETA1 = 1.3254
-BETA2 = 0.2571
-K_DEFAULT = (30.0, 10.0)
-LAMBDA_DEFAULT = (50.0, 20.0)
+# the D2R2's published design (JS appendix 12.2, section 8), from robots/d2r2.yaml
+_D2R2_DESIGN = packaged_description("d2r2").controller_design
+BETA0, BETA1, BETA2 = _D2R2_DESIGN.zc_beta
+K_DEFAULT = _D2R2_DESIGN.K
+LAMBDA_DEFAULT = _D2R2_DESIGN.Lambda
 EPSILON_CPT = 25.0
 EPSILON_CIRCLE = 45.0
 
@@ -230,14 +231,23 @@ def zc_default_epsilon(ctx, beta1, beta2, K, samples: int = 200) -> float:
 
 
 def make_zc(ctx, **params):
-    """Registry factory ``zc``: JS appendix 12.2 bounds for the D2R2, table 1 epsilon = 25 by
-    default (pass ``epsilon=45`` for the circle, section 10). Any other arm: beta0..2 from
+    """Registry factory ``zc``: the bounds and gains of the robot's description
+    (``controller_design.zc_beta``, ``K``, ``Lambda``; the D2R2's are JS appendix 12.2 and section 8),
+    table 1 epsilon = 25 by default (pass ``epsilon=45`` for the circle, section 10). Any other arm: beta0..2 from
     :func:`zc_bounds_any_arm` (params ``rel_bound``, ``abs_bound``; horizontal arms only), gains
     from :func:`robust_drake.systems.controllers.spong.default_gains`."""
     params = dict(params)
     box = {k: params.pop(k) for k in ("rel_bound", "abs_bound") if k in params}
     unc = None
-    if not str(ctx.robot).startswith("d2r2") and not {"beta1", "beta2"} <= set(params):
+    design = describe(ctx.robot).controller_design
+    if design.zc_beta is not None:  # published bounds and gains in the robot's description
+        _, b1, b2 = design.zc_beta
+        params.setdefault("beta1", b1)
+        params.setdefault("beta2", b2)
+        for key, value in (("K", design.K), ("Lambda", design.Lambda)):
+            if value is not None:
+                params.setdefault(key, value)
+    if design.zc_beta is None and not {"beta1", "beta2"} <= set(params):
         from robust_drake.systems.controllers.spong import default_gains
 
         unc = zc_bounds_any_arm(ctx.robot, ctx.load, **box)
@@ -252,7 +262,8 @@ def make_zc(ctx, **params):
         unc = dict(unc, kind="box", source="URDF base parameters +- rel_bound |theta0_i| + abs_bound; "
                    "beta0..2 of JS eqs. 21-23 over it (sampled configurations)")
     elif box:
-        raise RobustDrakeError("zc: rel_bound/abs_bound apply to arms other than the D2R2 (JS appendix 12.2 bounds)")
+        raise RobustDrakeError(f"zc: rel_bound/abs_bound apply to arms without published bounds; {ctx.robot!r} "
+                               "has beta0..2 in its description or params (the D2R2: JS appendix 12.2)")
     c = ZeniehCorlessController(ctx.n, ctx.period, **params)
     c.uncertainty = unc
     return c
