@@ -41,24 +41,14 @@ from robust_drake.errors import RobustDrakeError
 
 
 def ultimate_error_bound(K, Lambda, epsilon: float, m_min: float, m_max: float) -> float:
-    """Ultimate bound on max_i |e_i| [rad] of CI eq. 15 with boundary layer epsilon.
-
-    With V = 1/2 r^T M r (JS seed 001, eq. 20, Spong [11]) and theta~ = E z, ||z|| <= 1, the
-    uncertain term r^T D (theta~ + u) is <= ||w|| - ||w||^2 / epsilon <= epsilon / 4 inside the layer
-    (w = E^T D^T r) and <= 0 outside, so dV/dt <= -k_min ||r||^2 + epsilon / 4. V decreases outside
-    ||r||^2 = epsilon / (4 k_min); hence ultimately ||r|| <= sqrt(m_max / m_min) sqrt(epsilon / (4 k_min))
-    (m_min, m_max: extreme eigenvalues of M(q) [kg m^2]) and, as each e_i is a first-order filter
-    of r_i with pole -lambda_i, |e_i| <= ||r|| / lambda_min.
-    """
+    """Norm bound on max_i |e_i| [rad] of CI eq. 15 with boundary layer epsilon (the first
+    version; derivation in :mod:`robust_drake.experiments.ultimate_bound`, which also gives the
+    tighter per-joint bound the loop now checks): sqrt(m_max / m_min) sqrt(epsilon / (4 k_min)) /
+    lambda_min (m_min, m_max: extreme eigenvalues of M(q) [kg m^2])."""
     k_min = float(np.min(np.diag(np.atleast_2d(K)) if np.ndim(K) == 2 else np.min(K)))
     l_min = float(np.min(np.diag(np.atleast_2d(Lambda)) if np.ndim(Lambda) == 2 else np.min(Lambda)))
     r_bound = np.sqrt(m_max / m_min) * np.sqrt(epsilon / (4.0 * k_min))
     return float(r_bound / l_min)
-
-
-#: 2-link arms whose M(q) depends on the elbow angle only (the bound's q grid) and whose simulated
-#: experiment identifies them
-ROBOTS = ("dfki_double_pendulum_c1", "siciliano_2link")
 
 
 @dataclass
@@ -75,15 +65,77 @@ class LogsToControlConfig:
     seed: int = 0
 
 
-def torque_noise_std(robot, fraction: float) -> float:
-    """``fraction`` x max over q of |g(q)| [N m] of the URDF arm (elbow and shoulder on a grid)."""
+def check_arm(robot):
+    """The arm's :class:`~robust_drake.description.RobotDescription`; a one-line error naming what
+    is missing when the loop cannot run on it (a URDF to simulate and to derive the regressor from,
+    revolute joints, every joint actuated)."""
+    from robust_drake.description import describe
+    from robust_drake.models import make_plant
+    from pydrake.multibody.tree import JointIndex
+
+    desc = describe(robot)
+    if not desc.urdf:
+        raise RobustDrakeError(f"logs-to-control needs a URDF of {robot!r} (its description names none)")
+    plant = make_plant(robot)
+    kinds = {plant.get_joint(JointIndex(i)).type_name() for i in range(plant.num_joints())} - {"weld"}
+    if kinds != {"revolute"} or plant.num_actuators() != plant.num_velocities():
+        raise RobustDrakeError(f"logs-to-control needs an arm of actuated revolute joints; {robot!r} has "
+                               f"{sorted(kinds)} joints and {plant.num_actuators()} actuators for "
+                               f"{plant.num_velocities()} velocities")
+    return desc
+
+
+def _limits(plant):
+    lo, hi = plant.GetPositionLowerLimits(), plant.GetPositionUpperLimits()
+    finite = np.isfinite(lo) & np.isfinite(hi)
+    return np.where(finite, lo, -np.pi), np.where(finite, hi, np.pi), finite
+
+
+def torque_noise_std(robot, fraction: float, samples: int = 4000) -> float:
+    """``fraction`` x max over q of |g(q)| [N m] of the URDF arm: q on a 25-point grid per joint
+    within its limits ([-pi, pi] where it has none) up to 2 joints, else ``samples`` random
+    configurations within the limits (seed 0)."""
+    from robust_drake.models import make_plant
     from robust_drake.regressor import InverseDynamicsRegressor
 
     reg = InverseDynamicsRegressor.from_robot(robot)
-    g = np.linspace(-np.pi, np.pi, 25)
-    q = np.array([(a, b) for a in g for b in g])
+    lo, hi, _ = _limits(make_plant(robot))
+    if reg.n <= 2:
+        axes = np.meshgrid(*[np.linspace(a, b, 25) for a, b in zip(lo, hi)], indexing="ij")
+        q = np.stack([a.ravel() for a in axes], axis=1)
+    else:
+        q = np.random.default_rng(0).uniform(lo, hi, size=(samples, reg.n))
     z = np.zeros_like(q)
     return float(fraction * np.abs(reg.evaluate(q, z, z) @ reg.base_parameters()).max())
+
+
+def excitation_for(robot) -> dict:
+    """Fourier excitation of the identification experiment, from the arm: peak excursion 1.0 rad
+    (1.3 on the last joint: the generator's 2-link default) about the middle of each joint's
+    limits, at most 0.4 x its range (joints without limits: about 0); the PD excitation clipped at
+    the description's ``torque_limits`` (per joint; none declared: not clipped)."""
+    from robust_drake.models import make_plant
+
+    desc = check_arm(robot)
+    lo, hi, finite = _limits(make_plant(robot))
+    amp = np.ones(len(lo))
+    amp[-1] = 1.3
+    amp = np.where(finite, np.minimum(amp, 0.4 * (hi - lo)), amp)
+    lim = desc.torque_limits
+    return {"amplitude": tuple(amp.tolist()),
+            "offset": tuple(np.where(finite, 0.5 * (lo + hi), 0.0).tolist()) if finite.any() else None,
+            "torque_limit": None if lim is None else np.asarray(lim, float)}
+
+
+def true_friction(robot, n: int):
+    """(Coulomb [N m], viscous [N m s/rad]) per joint of the simulated truth: the description's
+    ``simulation.plant_friction`` when it declares one, else the generator's 2-link defaults
+    (0.08, 0.05 N m; 0.004, 0.002 N m s/rad), the second joint's value on joints beyond."""
+    pf = check_arm(robot).plant_friction
+    if pf is not None:
+        return tuple(pf["coulomb"]), tuple(pf["viscous"])
+    c, v = [0.08, 0.05], [0.004, 0.002]
+    return tuple((c + [c[-1]] * n)[:n]), tuple((v + [v[-1]] * n)[:n])
 
 
 def identify(cfg: LogsToControlConfig, out_dir: str):
@@ -95,16 +147,16 @@ def identify(cfg: LogsToControlConfig, out_dir: str):
     *torque prediction*, for which the attenuated least-squares fit can win on equally noisy
     validation columns, while a confidence set for the parameters needs the consistent estimate
     (with the rule on, C.1 keeps least squares with Hausman 503 > 15.1 and the set is refused)."""
-    from robust_drake.description import describe
     from robust_drake.model_repair.model import IdentifiedModel
     from robust_drake.model_repair.pipeline import RepairOptions, run_repair
     from robust_drake.model_repair.simulated import simulate_experiment
 
     path = os.path.join(out_dir, "fit.csv")
-    limits = describe(cfg.robot).torque_limits
+    exc = excitation_for(cfg.robot)
+    coulomb, viscous = true_friction(cfg.robot, len(exc["amplitude"]))
     simulate_experiment(robot=cfg.robot, duration=cfg.duration, seed=cfg.seed, out_csv=path,
                         torque_noise_std=torque_noise_std(cfg.robot, cfg.noise_fraction),
-                        excitation={"torque_limit": None if limits is None else float(min(limits))})
+                        excitation=exc, coulomb=coulomb, viscous=viscous)
     opts = RepairOptions(robot=cfg.robot, max_effects=0, kinds=[], replay=False, plots=False,
                          instruments=True, nominal=False, consistent=False,
                          never_worse_tol=float("inf"))
@@ -147,19 +199,11 @@ def _spread(draws, theta_true, names):
     return dict(zip([n for n, k in zip(names, keep) if k], rel.max(axis=0).tolist()))
 
 
-def run_logs_to_control(cfg: LogsToControlConfig | None = None, out_dir: str | None = None) -> dict:
-    """The whole loop; returns a JSON-able dict (keys ``uncertainty``, ``rho``, ``bound``,
-    ``draws``, ``max_error``, ``truth_radius``, ``pd_max_error``, ``spread``, ``rejected``)."""
-    from robust_drake.experiments.plant_draws import draw_plants
+def _identified_set(cfg, out_dir):
+    """(model, theta0, P, regressor, truth, truth radius); stops when the truth is outside."""
     from robust_drake.regressor import InverseDynamicsRegressor
     from robust_drake.uncertainty.confidence import confidence_ellipsoid, mahalanobis_radius
-    from robust_drake.uncertainty.ellipsoid import Ellipsoid
 
-    cfg = cfg or LogsToControlConfig()
-    if cfg.robot not in ROBOTS:
-        raise RobustDrakeError(f"logs-to-control runs on {', '.join(ROBOTS)} (the bound's M(q) grid is "
-                               f"over the elbow angle of a 2-link arm); got {cfg.robot!r}")
-    rng = np.random.default_rng(cfg.seed)
     with tempfile.TemporaryDirectory() as tmp:
         model = identify(cfg, out_dir or tmp)
     theta0, P = confidence_ellipsoid(model, cfg.alpha)
@@ -172,29 +216,90 @@ def run_logs_to_control(cfg: LogsToControlConfig | None = None, out_dir: str | N
         raise RobustDrakeError(f"{cfg.robot}: the true base parameters lie outside the identified "
                                f"{100 * (1 - cfg.alpha):g} % set (radius {truth_r:.3g}); the experiment "
                                "does not identify this arm")
+    return model, theta0, P, reg, truth, truth_r
+
+
+def _design(cfg, reg, theta0, P):
+    """Eq. 15's parameters from the set: the ellipsoid and the sampled-loop boundary layer
+    (``ultimate_bound.sampled_layer``, with M(q) of theta0 along the loop's reference); returns (params, K, Lambda, layer info, reference positions)."""
+    from robust_drake.models import ArmSpec
+    from robust_drake.experiments.ultimate_bound import mass_matrices, sampled_layer
+    from robust_drake.trajectories import make_reference
+    from robust_drake.uncertainty.ellipsoid import Ellipsoid
+
     ell = Ellipsoid(theta0, P)
-    q_grid = [np.array([0.0, q2]) for q2 in np.linspace(-np.pi, np.pi, 73)]
+    ctrl = _closed_loop_controller(cfg, {"ellipsoid": ell})
+    ref = make_reference(ArmSpec(cfg.robot, cfg.robot, reg.n, (), True, None), "sine")
+    q, qd, qdd = (np.asarray(x, float).reshape(-1, reg.n) for x in ref(np.linspace(0.0, cfg.track_duration, 200)))
+    Ms = mass_matrices(reg, theta0, q)
+    if np.linalg.eigvalsh(Ms)[:, 0].min() <= 0:
+        raise RobustDrakeError(f"{cfg.robot}: M(q) of the identified centre is not positive definite on the reference")
+    K, Lam = np.asarray(ctrl.K, float), np.asarray(ctrl.Lambda, float)
+    eps = sampled_layer(reg.evaluate(q, qd, qdd), ell.E, Ms, K, 1.0 / cfg.rate)
+    info = {"epsilon": eps, "previous_rule_epsilon": float(ctrl.epsilon),
+            "rule": "sampled-loop margin epsilon = g_max h / (beta - h k_max) (ultimate_bound.sampled_layer)"}
+    return {"ellipsoid": ell, "epsilon": eps}, K, Lam, info, q
+
+
+def _closed_loop_controller(cfg, params):
+    from robust_drake.diagram import ClosedLoopConfig, build_closed_loop
+
+    return build_closed_loop(ClosedLoopConfig(robot=cfg.robot, controller="calafiore", controller_params=dict(params),
+                                              trajectory="sine", rate=cfg.rate, duration=cfg.track_duration,
+                                              observer="exact")).controller
+
+
+def _run_draw(cfg, d, params, K, Lam, region, plant, theta0, P):
+    """One drawn plant under eq. 15: its per-joint bound and its errors after the transient."""
+    from robust_drake.experiments.ultimate_bound import mass_bounds, norm_bound, per_joint_bound
+    from robust_drake.uncertainty.confidence import mahalanobis_radius
+
+    _, res = _closed_loop(cfg, "calafiore", params, d.setup)
+    ctx = plant.CreateDefaultContext()
+    d.setup(plant, ctx)
+    mb = mass_bounds(plant, ctx, region, K)
+    bj = per_joint_bound(params["epsilon"], mb, Lam)
+    ej = np.abs(res.q - res.q_d)[res.t >= cfg.transient].max(axis=0)
+    return {"kind": d.kind, "radius": mahalanobis_radius(theta0, P, d.theta), "theta": d.theta.tolist(),
+            "bound": max(bj), "max_error": float(ej.max()), "ratio": float(max(bj) / ej.max()),
+            "bound_per_joint": bj, "max_error_per_joint": ej.tolist(),
+            "within": bool(np.all(ej <= np.asarray(bj))), "diverged": bool(res.diverged),
+            "epsilon": float(params["epsilon"]), "norm_bound": norm_bound(params["epsilon"], mb, Lam),
+            "kappa": mb.kappa, "k_min_over_m_max": mb.k_min / mb.m_max, "sqrt_m_ratio": float(np.sqrt(mb.m_max / mb.m_min)),
+            "minv": list(mb.minv)}
+
+
+def run_logs_to_control(cfg: LogsToControlConfig | None = None, out_dir: str | None = None) -> dict:
+    """The whole loop; returns a JSON-able dict (keys ``uncertainty``, ``rho``, ``bound``,
+    ``draws``, ``max_error``, ``truth_radius``, ``pd_max_error``, ``spread``, ``rejected``,
+    ``region``, ``epsilon_rule``)."""
+    from robust_drake.experiments.plant_draws import draw_plants
+    from robust_drake.experiments.ultimate_bound import bound_region
+    from robust_drake.models import make_plant
+
+    cfg = cfg or LogsToControlConfig()
+    check_arm(cfg.robot)
+    rng = np.random.default_rng(cfg.seed)
+    model, theta0, P, reg, truth, truth_r = _identified_set(cfg, out_dir)
+    plant = make_plant(cfg.robot)
+    params, K, Lam, layer, q_ref = _design(cfg, reg, theta0, P)
+    region, region_info = bound_region(plant, q_ref, np.random.default_rng(cfg.seed + 1))
     plants, rejected = draw_plants(reg, theta0, P, cfg.draws, rng, cfg.boundary_share)
-    draws = []
-    for d in plants:
-        loop, res = _closed_loop(cfg, "calafiore", {"ellipsoid": ell}, d.setup)
-        c = loop.controller
-        m_min, m_max = mass_extremes(cfg.robot, d.setup, q_grid)
-        bound = ultimate_error_bound(c.K, c.Lambda, c.epsilon, m_min, m_max)
-        err = float(np.max(np.abs(res.q - res.q_d)[res.t >= cfg.transient]))
-        draws.append({"kind": d.kind, "radius": mahalanobis_radius(theta0, P, d.theta),
-                      "theta": d.theta.tolist(), "bound": bound, "max_error": err,
-                      "diverged": bool(res.diverged), "epsilon": float(c.epsilon)})
-    _, pd = _closed_loop(cfg, "pd", {}, lambda plant, ctx: None)
+    draws = [_run_draw(cfg, d, params, K, Lam, region, plant, theta0, P) for d in plants]
+    if region_info["kind"] == "tube":
+        region_info["consistent"] = bool(all(max(d["bound_per_joint"]) <= region_info["delta"] for d in draws))
+    _, pd = _closed_loop(cfg, "pd", {"K": K.tolist(), "Lambda": Lam.tolist()}, lambda plant, ctx: None)
     pd_err = float(np.max(np.abs(pd.q - pd.q_d)[pd.t >= cfg.transient]))
     return {"robot": cfg.robot, "alpha": cfg.alpha, "samples": int(model.data.get("samples", 0)),
+            "estimator": model.estimator,
             "uncertainty": {"kind": "ellipsoid", "source": f"chi2 {1 - cfg.alpha:g} confidence set of the "
                             "identified base parameters (N/N_eff-inflated covariance)",
                             "parameters": list(model.base_names), "theta0": theta0.tolist(), "P": P.tolist()},
             "rho": float(np.sqrt(np.linalg.eigvalsh(P)[-1])), "truth_radius": truth_r,
             "theta_true": truth.tolist(), "bound": max(d["bound"] for d in draws),
             "max_error": max(d["max_error"] for d in draws), "draws": draws, "rejected": rejected,
-            "spread": _spread(plants, truth, list(reg.base_names)), "pd_max_error": pd_err}
+            "spread": _spread(plants, truth, list(reg.base_names)), "pd_max_error": pd_err,
+            "region": region_info, "epsilon_rule": layer, "K": K.tolist(), "Lambda": Lam.tolist()}
 
 
 def plot_logs_to_control(out: dict, path) -> str:

@@ -50,10 +50,8 @@ def _allowed(reg) -> np.ndarray:
     return ok
 
 
-def standard_for_base(reg, theta, pi_nom=None) -> np.ndarray:
-    """pi with K pi = theta, nearest to pi_nom in relative terms (module docstring)."""
-    pi_nom = reg.standard_parameters() if pi_nom is None else np.asarray(pi_nom, float)
-    K = np.asarray(reg.K, float)
+def _weights(reg, pi_nom) -> np.ndarray:
+    """W of the module docstring (0 on the entries a draw keeps)."""
     w = np.where(_allowed(reg), pi_nom ** 2, 0.0)
     for k in range(len(reg._nodes)):  # body scales: m r_g [kg m] and m r_g^2 [kg m^2]
         m = max(pi_nom[10 * k], 0.0)
@@ -62,13 +60,76 @@ def standard_for_base(reg, theta, pi_nom=None) -> np.ndarray:
         w[10 * k + 4:10 * k + 10] += (m * rg2) ** 2
     base = 10 * len(reg._nodes)
     w[base:] += np.where(w[base:] > 0, 0.0, 1e-6 * (w.max() if w.max() > 0 else 1.0))
-    w *= _allowed(reg)
+    return w * _allowed(reg)
+
+
+def _reach(reg, theta, pi, w) -> np.ndarray:
+    """pi + W K^T (K W K^T)^-1 (theta - K pi): the smallest weighted change with K pi = theta."""
+    K = np.asarray(reg.K, float)
     KW = K * w
-    d = np.linalg.lstsq(KW @ K.T, np.asarray(theta, float) - K @ pi_nom, rcond=None)[0]
-    pi = pi_nom + KW.T @ d
-    if not np.allclose(K @ pi, theta, rtol=1e-9, atol=1e-12 * max(np.abs(theta).max(), 1.0)):
+    d = np.linalg.lstsq(KW @ K.T, np.asarray(theta, float) - K @ pi, rcond=None)[0]
+    out = pi + KW.T @ d
+    if not np.allclose(K @ out, theta, rtol=1e-9, atol=1e-12 * max(np.abs(theta).max(), 1.0)):
         raise RobustDrakeError("these base parameters cannot be reached with the masses kept")
-    return pi
+    return out
+
+
+def standard_for_base(reg, theta, pi_nom=None) -> np.ndarray:
+    """pi with K pi = theta, nearest to pi_nom in relative terms (module docstring)."""
+    pi_nom = reg.standard_parameters() if pi_nom is None else np.asarray(pi_nom, float)
+    return _reach(reg, theta, pi_nom, _weights(reg, pi_nom))
+
+
+def _pseudo_inertia(x):
+    """Pseudo-inertia J = [[tr(I)/2 1 - I, h], [h^T, m]] of [m, h, Ixx, Iyy, Izz, Ixy, Ixz, Iyz]
+    (about the body origin; cvxpy expressions): J >= 0 iff a mass density realises the body
+    (Wensing, Kim & Slotine, IEEE RA-L 2018, eq. 8)."""
+    import cvxpy as cp
+
+    m, hx, hy, hz, ixx, iyy, izz, ixy, ixz, iyz = (x[i] for i in range(10))
+    t = 0.5 * (ixx + iyy + izz)
+    return cp.bmat([[t - ixx, -ixy, -ixz, hx], [-ixy, t - iyy, -iyz, hy], [-ixz, -iyz, t - izz, hz],
+                    [hx, hy, hz, m]])
+
+
+def physical_by_sdp(reg, theta, pi_nom, margin: float = 1e-4) -> np.ndarray | None:
+    """pi with K pi = theta nearest to pi_nom in the weights W (masses and damping kept) with every
+    body's pseudo-inertia >= margin diag(m r_g^2 (x3), m) of the URDF body and every reflected
+    rotor inertia >= 0: a small SDP (Clarabel), then :func:`_reach` for K pi = theta to rounding.
+    For arms whose null space of K is not made of whole unseen columns (a 3D arm: Ixx + Iyy of a
+    link is seen only together with other links' entries), where :func:`make_physical` cannot
+    repair a body. None when infeasible (theta is then no rigid-body arm with these masses)."""
+    import cvxpy as cp
+
+    w = _weights(reg, pi_nom)
+    free = w > 0
+    x = cp.Variable(int(free.sum()))
+    S = np.eye(len(pi_nom))[:, free]
+    pi = np.where(free, 0.0, pi_nom) + S @ x
+    cons = [np.asarray(reg.K, float) @ pi == np.asarray(theta, float)]
+    for k in range(len(reg._nodes)):
+        m = pi_nom[10 * k]
+        if m <= 0:
+            continue
+        s = max(np.sum(pi_nom[10 * k + 4:10 * k + 7]) / 2.0, 1e-12)
+        J = _pseudo_inertia(pi[10 * k:10 * k + 10])
+        cons.append(0.5 * (J + J.T) >> margin * np.diag([s, s, s, m]))
+    base = 10 * len(reg._nodes)
+    for c, (_, kind, _) in enumerate(reg._extras):
+        if kind == "Ia":
+            cons.append(pi[base + c] >= 0)
+    cost = cp.sum_squares(cp.multiply(1.0 / np.sqrt(w[free]), x - pi_nom[free]))
+    prob = cp.Problem(cp.Minimize(cost), cons)
+    try:
+        prob.solve(solver="CLARABEL")
+    except cp.error.SolverError:
+        return None
+    if prob.status not in ("optimal", "optimal_inaccurate") or x.value is None:
+        return None
+    out = np.array(pi_nom, float)
+    out[free] = x.value
+    out = _reach(reg, theta, out, w)
+    return make_physical(reg, out)
 
 
 def _central_valid(Iv, m, h, tol=1e-12) -> bool:
@@ -171,7 +232,7 @@ def _z(rng, p, kind):
     return d if kind == "boundary" else d * rng.uniform() ** (1.0 / p)
 
 
-def draw_plants(reg, theta0, P, count: int, rng, boundary_share: float = 0.5, tries: int = 50):
+def draw_plants(reg, theta0, P, count: int, rng, boundary_share: float = 0.5, tries: int = 200):
     """``count`` :class:`PlantDraw` across E(P, theta0): the first round(boundary_share count) on
     its boundary, the rest inside; returns (draws, rejected)."""
     from robust_drake.models import make_plant
@@ -188,6 +249,8 @@ def draw_plants(reg, theta0, P, count: int, rng, boundary_share: float = 0.5, tr
             z = _z(rng, len(theta0), kind)
             theta = np.asarray(theta0, float) + E @ z
             pi = make_physical(reg, standard_for_base(reg, theta, pi_nom))
+            if pi is None:
+                pi = physical_by_sdp(reg, theta, pi_nom)
             if pi is not None:
                 break
             rejected += 1
