@@ -92,44 +92,53 @@ def _pseudo_inertia(x):
                     [hx, hy, hz, m]])
 
 
-def physical_by_sdp(reg, theta, pi_nom, margin: float = 1e-4) -> np.ndarray | None:
+class PhysicalBySdp:
     """pi with K pi = theta nearest to pi_nom in the weights W (masses and damping kept) with every
     body's pseudo-inertia >= margin diag(m r_g^2 (x3), m) of the URDF body and every reflected
-    rotor inertia >= 0: a small SDP (Clarabel), then :func:`_reach` for K pi = theta to rounding.
-    For arms whose null space of K is not made of whole unseen columns (a 3D arm: Ixx + Iyy of a
-    link is seen only together with other links' entries), where :func:`make_physical` cannot
-    repair a body. None when infeasible (theta is then no rigid-body arm with these masses)."""
-    import cvxpy as cp
+    rotor inertia >= 0: a small SDP (Clarabel; built once, theta a parameter), then :func:`_reach`
+    for K pi = theta to rounding. For arms whose null space of K is not made of whole unseen
+    columns (a 3D arm: Ixx + Iyy of a link is seen only together with other links' entries), where
+    :func:`make_physical` cannot repair a body. Calling it returns None when infeasible (theta is
+    then no rigid-body arm with these masses)."""
 
-    w = _weights(reg, pi_nom)
-    free = w > 0
-    x = cp.Variable(int(free.sum()))
-    S = np.eye(len(pi_nom))[:, free]
-    pi = np.where(free, 0.0, pi_nom) + S @ x
-    cons = [np.asarray(reg.K, float) @ pi == np.asarray(theta, float)]
-    for k in range(len(reg._nodes)):
-        m = pi_nom[10 * k]
-        if m <= 0:
-            continue
-        s = max(np.sum(pi_nom[10 * k + 4:10 * k + 7]) / 2.0, 1e-12)
-        J = _pseudo_inertia(pi[10 * k:10 * k + 10])
-        cons.append(0.5 * (J + J.T) >> margin * np.diag([s, s, s, m]))
-    base = 10 * len(reg._nodes)
-    for c, (_, kind, _) in enumerate(reg._extras):
-        if kind == "Ia":
-            cons.append(pi[base + c] >= 0)
-    cost = cp.sum_squares(cp.multiply(1.0 / np.sqrt(w[free]), x - pi_nom[free]))
-    prob = cp.Problem(cp.Minimize(cost), cons)
-    try:
-        prob.solve(solver="CLARABEL")
-    except cp.error.SolverError:
-        return None
-    if prob.status not in ("optimal", "optimal_inaccurate") or x.value is None:
-        return None
-    out = np.array(pi_nom, float)
-    out[free] = x.value
-    out = _reach(reg, theta, out, w)
-    return make_physical(reg, out)
+    def __init__(self, reg, pi_nom, margin: float = 1e-4):
+        import cvxpy as cp
+
+        self.reg, self.pi_nom = reg, np.asarray(pi_nom, float)
+        self.w = w = _weights(reg, self.pi_nom)
+        self.free = free = w > 0
+        self.x = x = cp.Variable(int(free.sum()))
+        self.theta = cp.Parameter(np.asarray(reg.K).shape[0])
+        pi = np.where(free, 0.0, self.pi_nom) + np.eye(len(w))[:, free] @ x
+        cons = [np.asarray(reg.K, float) @ pi == self.theta]
+        for k in range(len(reg._nodes)):
+            m = self.pi_nom[10 * k]
+            if m > 0:
+                s = max(np.sum(self.pi_nom[10 * k + 4:10 * k + 7]) / 2.0, 1e-12)
+                J = _pseudo_inertia(pi[10 * k:10 * k + 10])
+                cons.append(0.5 * (J + J.T) >> margin * np.diag([s, s, s, m]))
+        base = 10 * len(reg._nodes)
+        cons += [pi[base + c] >= 0 for c, (_, kind, _) in enumerate(reg._extras) if kind == "Ia"]
+        cost = cp.sum_squares(cp.multiply(1.0 / np.sqrt(w[free]), x - self.pi_nom[free]))
+        self.problem = cp.Problem(cp.Minimize(cost), cons)
+
+    def __call__(self, theta) -> np.ndarray | None:
+        import cvxpy as cp
+
+        self.theta.value = np.asarray(theta, float)
+        try:
+            self.problem.solve(solver="CLARABEL")
+        except cp.error.SolverError:
+            return None
+        if self.problem.status not in ("optimal", "optimal_inaccurate") or self.x.value is None:
+            return None
+        out = self.pi_nom.copy()
+        out[self.free] = self.x.value
+        try:
+            out = _reach(self.reg, theta, out, self.w)
+        except RobustDrakeError:
+            return None
+        return make_physical(self.reg, out)
 
 
 def _central_valid(Iv, m, h, tol=1e-12) -> bool:
@@ -241,7 +250,7 @@ def draw_plants(reg, theta0, P, count: int, rng, boundary_share: float = 0.5, tr
     E = Ellipsoid(np.asarray(theta0, float), np.asarray(P, float)).E
     pi_nom = reg.standard_parameters()
     n_b = int(round(boundary_share * count))
-    out, rejected = [], 0
+    out, rejected, sdp = [], 0, None
     plant = make_plant(reg.urdf)
     for i in range(count):
         kind = "boundary" if i < n_b else "interior"
@@ -250,7 +259,8 @@ def draw_plants(reg, theta0, P, count: int, rng, boundary_share: float = 0.5, tr
             theta = np.asarray(theta0, float) + E @ z
             pi = make_physical(reg, standard_for_base(reg, theta, pi_nom))
             if pi is None:
-                pi = physical_by_sdp(reg, theta, pi_nom)
+                sdp = sdp or PhysicalBySdp(reg, pi_nom)
+                pi = sdp(theta)
             if pi is not None:
                 break
             rejected += 1
