@@ -67,22 +67,36 @@ class LogsToControlConfig:
 
 def check_arm(robot):
     """The arm's :class:`~robust_drake.description.RobotDescription`; a one-line error naming what
-    is missing when the loop cannot run on it (a URDF to simulate and to derive the regressor from,
-    revolute joints, every joint actuated)."""
-    from robust_drake.description import describe
-    from robust_drake.models import make_plant
+    is missing when the loop cannot run on it: a URDF (a known robot or a path), actuated revolute
+    joints only, and a gravity torque (the experiment's torque noise is a fraction of the largest
+    one)."""
     from pydrake.multibody.tree import JointIndex
 
-    desc = describe(robot)
-    if not desc.urdf:
-        raise RobustDrakeError(f"logs-to-control needs a URDF of {robot!r} (its description names none)")
+    from robust_drake.description import describe
+    from robust_drake.models import make_plant, resolve_urdf
+
+    resolve_urdf(robot)  # one-line error for an unknown robot or a missing file
     plant = make_plant(robot)
     kinds = {plant.get_joint(JointIndex(i)).type_name() for i in range(plant.num_joints())} - {"weld"}
     if kinds != {"revolute"} or plant.num_actuators() != plant.num_velocities():
         raise RobustDrakeError(f"logs-to-control needs an arm of actuated revolute joints; {robot!r} has "
                                f"{sorted(kinds)} joints and {plant.num_actuators()} actuators for "
                                f"{plant.num_velocities()} velocities")
-    return desc
+    if np.linalg.norm(plant.gravity_field().gravity_vector()) == 0 or not _has_gravity_torque(plant):
+        raise RobustDrakeError(f"logs-to-control sets the experiment's torque noise as a fraction of the "
+                               f"arm's largest gravity torque; {robot!r} has none (an arm moving in a "
+                               "horizontal plane)")
+    return describe(robot)
+
+
+def _has_gravity_torque(plant, tries: int = 20) -> bool:
+    ctx = plant.CreateDefaultContext()
+    rng = np.random.default_rng(0)
+    for _ in range(tries):
+        plant.SetPositions(ctx, rng.uniform(-np.pi, np.pi, plant.num_positions()))
+        if np.abs(plant.CalcGravityGeneralizedForces(ctx)).max() > 1e-9:
+            return True
+    return False
 
 
 def _limits(plant):
@@ -261,6 +275,7 @@ def _run_draw(cfg, d, params, K, Lam, region, plant, theta0, P):
     bj = per_joint_bound(params["epsilon"], mb, Lam)
     ej = np.abs(res.q - res.q_d)[res.t >= cfg.transient].max(axis=0)
     return {"kind": d.kind, "radius": mahalanobis_radius(theta0, P, d.theta), "theta": d.theta.tolist(),
+            "projected": bool(d.projected),
             "bound": max(bj), "max_error": float(ej.max()), "ratio": float(max(bj) / ej.max()),
             "bound_per_joint": bj, "max_error_per_joint": ej.tolist(),
             "within": bool(np.all(ej <= np.asarray(bj))), "diverged": bool(res.diverged),

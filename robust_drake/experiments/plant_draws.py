@@ -37,6 +37,7 @@ class PlantDraw:
     kind: str
     pi: np.ndarray
     setup: object
+    projected: bool = False
 
 
 def _allowed(reg) -> np.ndarray:
@@ -92,6 +93,65 @@ def _pseudo_inertia(x):
                     [hx, hy, hz, m]])
 
 
+def _physical_variables(reg, pi_nom, margin):
+    """(W, x, pi(x), constraints): the free entries x of pi (W > 0) and the physical constraints
+    of :class:`PhysicalBySdp` (pseudo-inertia >= margin diag(m r_g^2 (x3), m), rotor inertia >= 0)."""
+    import cvxpy as cp
+
+    w = _weights(reg, pi_nom)
+    free = w > 0
+    x = cp.Variable(int(free.sum()))
+    pi = np.where(free, 0.0, pi_nom) + np.eye(len(w))[:, free] @ x
+    cons = []
+    for k in range(len(reg._nodes)):
+        m = pi_nom[10 * k]
+        if m > 0:
+            s = max(np.sum(pi_nom[10 * k + 4:10 * k + 7]) / 2.0, 1e-12)
+            J = _pseudo_inertia(pi[10 * k:10 * k + 10])
+            cons.append(0.5 * (J + J.T) >> margin * np.diag([s, s, s, m]))
+    base = 10 * len(reg._nodes)
+    cons += [pi[base + c] >= 0 for c, (_, kind, _) in enumerate(reg._extras) if kind == "Ia"]
+    return w, x, pi, cons
+
+
+class NearestPhysical:
+    """The physically valid plant (constraints of :class:`PhysicalBySdp`) whose base parameters
+    K pi lie in E(P, theta0) at Mahalanobis radius <= ``inside`` and are nearest (in P^-1) to a
+    drawn theta that no rigid body realises; ties in the null space of K are broken towards pi_nom
+    (weight 1e-6 in W). An SDP with a second-order cone, built once (theta a parameter). Calling it
+    returns pi or None."""
+
+    def __init__(self, reg, pi_nom, theta0, P, margin: float = 1e-4, inside: float = 0.999):
+        import cvxpy as cp
+
+        self.reg, self.pi_nom = reg, np.asarray(pi_nom, float)
+        w, self.x, pi, cons = _physical_variables(reg, self.pi_nom, margin)
+        lam, V = np.linalg.eigh(0.5 * (np.asarray(P, float) + np.asarray(P, float).T))
+        L = (V / np.sqrt(lam)).T  # ||L d||^2 = d^T P^-1 d
+        K = np.asarray(reg.K, float)
+        self.theta = cp.Parameter(K.shape[0])
+        cons.append(cp.norm(L @ (K @ pi) - L @ np.asarray(theta0, float)) <= inside)
+        free = w > 0
+        self.free = free
+        cost = (cp.sum_squares(L @ (K @ pi) - L @ self.theta)
+                + 1e-6 * cp.sum_squares(cp.multiply(1.0 / np.sqrt(w[free]), self.x - self.pi_nom[free])))
+        self.problem = cp.Problem(cp.Minimize(cost), cons)
+
+    def __call__(self, theta) -> np.ndarray | None:
+        import cvxpy as cp
+
+        self.theta.value = np.asarray(theta, float)
+        try:
+            self.problem.solve(solver="CLARABEL")
+        except cp.error.SolverError:
+            return None
+        if self.problem.status not in ("optimal", "optimal_inaccurate") or self.x.value is None:
+            return None
+        out = self.pi_nom.copy()
+        out[self.free] = self.x.value
+        return make_physical(self.reg, out)
+
+
 class PhysicalBySdp:
     """pi with K pi = theta nearest to pi_nom in the weights W (masses and damping kept) with every
     body's pseudo-inertia >= margin diag(m r_g^2 (x3), m) of the URDF body and every reflected
@@ -105,21 +165,11 @@ class PhysicalBySdp:
         import cvxpy as cp
 
         self.reg, self.pi_nom = reg, np.asarray(pi_nom, float)
-        self.w = w = _weights(reg, self.pi_nom)
-        self.free = free = w > 0
-        self.x = x = cp.Variable(int(free.sum()))
+        self.w, self.x, pi, cons = _physical_variables(reg, self.pi_nom, margin)
+        self.free = self.w > 0
         self.theta = cp.Parameter(np.asarray(reg.K).shape[0])
-        pi = np.where(free, 0.0, self.pi_nom) + np.eye(len(w))[:, free] @ x
-        cons = [np.asarray(reg.K, float) @ pi == self.theta]
-        for k in range(len(reg._nodes)):
-            m = self.pi_nom[10 * k]
-            if m > 0:
-                s = max(np.sum(self.pi_nom[10 * k + 4:10 * k + 7]) / 2.0, 1e-12)
-                J = _pseudo_inertia(pi[10 * k:10 * k + 10])
-                cons.append(0.5 * (J + J.T) >> margin * np.diag([s, s, s, m]))
-        base = 10 * len(reg._nodes)
-        cons += [pi[base + c] >= 0 for c, (_, kind, _) in enumerate(reg._extras) if kind == "Ia"]
-        cost = cp.sum_squares(cp.multiply(1.0 / np.sqrt(w[free]), x - self.pi_nom[free]))
+        cons.append(np.asarray(reg.K, float) @ pi == self.theta)
+        cost = cp.sum_squares(cp.multiply(1.0 / np.sqrt(self.w[self.free]), self.x - self.pi_nom[self.free]))
         self.problem = cp.Problem(cp.Minimize(cost), cons)
 
     def __call__(self, theta) -> np.ndarray | None:
@@ -241,36 +291,50 @@ def _z(rng, p, kind):
     return d if kind == "boundary" else d * rng.uniform() ** (1.0 / p)
 
 
-def draw_plants(reg, theta0, P, count: int, rng, boundary_share: float = 0.5, tries: int = 200):
+def _realise(reg, theta, pi_nom, sdp):
+    pi = make_physical(reg, standard_for_base(reg, theta, pi_nom))
+    return sdp(theta) if pi is None else pi
+
+
+def draw_plants(reg, theta0, P, count: int, rng, boundary_share: float = 0.5, tries: int = 20):
     """``count`` :class:`PlantDraw` across E(P, theta0): the first round(boundary_share count) on
-    its boundary, the rest inside; returns (draws, rejected)."""
+    its boundary, the rest inside; returns (draws, rejected).
+
+    A draw no rigid body with the URDF's masses realises is drawn again (counted in ``rejected``);
+    after ``tries`` such draws the last one is replaced by the nearest physically valid point of
+    the set (:class:`NearestPhysical`, ``PlantDraw.projected``; its radius is then below 1). Where
+    most of the set is no rigid body (a 3D arm's poorly excited link inertias) this keeps the draws
+    spread over the part of the set a real arm can be in."""
     from robust_drake.models import make_plant
+    from robust_drake.uncertainty.confidence import mahalanobis_radius
     from robust_drake.uncertainty.ellipsoid import Ellipsoid
 
-    E = Ellipsoid(np.asarray(theta0, float), np.asarray(P, float)).E
+    theta0, P = np.asarray(theta0, float), np.asarray(P, float)
+    E = Ellipsoid(theta0, P).E
     pi_nom = reg.standard_parameters()
     n_b = int(round(boundary_share * count))
-    out, rejected, sdp = [], 0, None
+    out, rejected, sdp, nearest = [], 0, PhysicalBySdp(reg, pi_nom), None
     plant = make_plant(reg.urdf)
     for i in range(count):
-        kind = "boundary" if i < n_b else "interior"
+        kind, projected = ("boundary" if i < n_b else "interior"), False
         for _ in range(tries):
-            z = _z(rng, len(theta0), kind)
-            theta = np.asarray(theta0, float) + E @ z
-            pi = make_physical(reg, standard_for_base(reg, theta, pi_nom))
-            if pi is None:
-                sdp = sdp or PhysicalBySdp(reg, pi_nom)
-                pi = sdp(theta)
+            theta = theta0 + E @ _z(rng, len(theta0), kind)
+            pi = _realise(reg, theta, pi_nom, sdp)
             if pi is not None:
                 break
             rejected += 1
         else:
-            raise RobustDrakeError(f"no physically valid plant in {tries} {kind} draws of the set")
+            nearest = nearest or NearestPhysical(reg, pi_nom, theta0, P)
+            pi, projected = nearest(theta), True
+            if pi is None:
+                raise RobustDrakeError(f"no physically valid plant near {tries} {kind} draws of the set")
+            theta = np.asarray(reg.K, float) @ pi
         setup = plant_setup(reg, pi)
         ctx = plant.CreateDefaultContext()
         setup(plant, ctx)
         th_drake = reg.base_parameters(plant, ctx)
         if not np.allclose(th_drake, theta, rtol=1e-8, atol=1e-10 * max(np.abs(theta).max(), 1.0)):
             raise RobustDrakeError("a drawn plant does not have the drawn base parameters (internal error)")
-        out.append(PlantDraw(theta=th_drake, radius=float(np.linalg.norm(z)), kind=kind, pi=pi, setup=setup))
+        out.append(PlantDraw(theta=th_drake, radius=mahalanobis_radius(theta0, P, th_drake), kind=kind, pi=pi,
+                             setup=setup, projected=projected))
     return out, rejected
