@@ -263,8 +263,10 @@ def _closed_loop_controller(cfg, params):
                                               observer="exact")).controller
 
 
-def _run_draw(cfg, d, params, K, Lam, region, plant, theta0, P):
-    """One drawn plant under eq. 15: its per-joint bound and its errors after the transient."""
+def _run_draw(cfg, d, params, K, Lam, region, plant, theta0, P, eps_previous):
+    """One drawn plant under eq. 15: its per-joint bound and its errors after the transient, with
+    the factors of the bound (``norm_bound``: the first version's formula at the same epsilon,
+    ``previous_bound``: that formula at the previous rule's epsilon)."""
     from robust_drake.experiments.ultimate_bound import mass_bounds, norm_bound, per_joint_bound
     from robust_drake.uncertainty.confidence import mahalanobis_radius
 
@@ -280,6 +282,7 @@ def _run_draw(cfg, d, params, K, Lam, region, plant, theta0, P):
             "bound_per_joint": bj, "max_error_per_joint": ej.tolist(),
             "within": bool(np.all(ej <= np.asarray(bj))), "diverged": bool(res.diverged),
             "epsilon": float(params["epsilon"]), "norm_bound": norm_bound(params["epsilon"], mb, Lam),
+            "previous_bound": norm_bound(eps_previous, mb, Lam),
             "kappa": mb.kappa, "k_min_over_m_max": mb.k_min / mb.m_max, "sqrt_m_ratio": float(np.sqrt(mb.m_max / mb.m_min)),
             "minv": list(mb.minv)}
 
@@ -300,7 +303,8 @@ def run_logs_to_control(cfg: LogsToControlConfig | None = None, out_dir: str | N
     params, K, Lam, layer, q_ref = _design(cfg, reg, theta0, P)
     region, region_info = bound_region(plant, q_ref, np.random.default_rng(cfg.seed + 1))
     plants, rejected = draw_plants(reg, theta0, P, cfg.draws, rng, cfg.boundary_share)
-    draws = [_run_draw(cfg, d, params, K, Lam, region, plant, theta0, P) for d in plants]
+    draws = [_run_draw(cfg, d, params, K, Lam, region, plant, theta0, P, layer["previous_rule_epsilon"])
+             for d in plants]
     if region_info["kind"] == "tube":
         region_info["consistent"] = bool(all(max(d["bound_per_joint"]) <= region_info["delta"] for d in draws))
     _, pd = _closed_loop(cfg, "pd", {"K": K.tolist(), "Lambda": Lam.tolist()}, lambda plant, ctx: None)
