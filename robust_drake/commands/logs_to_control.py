@@ -71,10 +71,11 @@ def run(args) -> int:
     print(f"{args.robot}: {out['samples']} samples, {100 * (1 - args.alpha):g} % set, rho = {out['rho']:.4g}, "
           f"truth at Mahalanobis radius {out['truth_radius']:.3f}")
     print("largest change of a drawn plant from the truth: " + ", ".join(
-        f"{k} {100 * v:.3g} %" for k, v in out["spread"].items()) + f" ({out['rejected']} invalid draws redrawn)")
+        f"{k} {100 * v:.3g} %" for k, v in out["spread"].items()) + f" ({out['rejected']} draws no rigid body "
+        f"realises redrawn, {sum(d['projected'] for d in out['draws'])} replaced by the nearest valid point of the set)")
     print(f"boundary layer epsilon {out['epsilon_rule']['epsilon']:.4g} (previous rule "
           f"{out['epsilon_rule']['previous_rule_epsilon']:.4g}); M(q) over {_region(out['region'])}")
-    rows = [[i, d["kind"], d["radius"], d["bound"], d["max_error"], d["ratio"], "yes" if d["within"] else "NO"]
+    rows = [[i, d["kind"] + (" (nearest valid)" if d["projected"] else ""), d["radius"], d["bound"], d["max_error"], d["ratio"], "yes" if d["within"] else "NO"]
             for i, d in enumerate(out["draws"])]
     print(format_table(rows, ["draw", "where", "radius", "bound [rad]", "max |e| [rad]", "bound / |e|",
                               "every joint within"]))

@@ -1,32 +1,39 @@
 """From logs to a guaranteed controller, on a simulated arm with a known truth.
 
-1. A "true" 2-link arm (URDF, Coulomb + viscous friction; ``ROBOTS``) runs a PD-tracked Fourier
-   excitation (``model_repair.simulated.simulate_experiment``) for a short time (default 5 s at
-   250 Hz, 843 rows after the filter's edges) with torque noise of ``noise_fraction`` (2 %) of the
-   arm's largest gravity torque, so that the identified set is of a size worth a robust design
-   (C.1: draws up to 22 % off the truth in Izz, Siciliano: 9 %; against ~0.1 % in link masses
-   with 8 s and 5 mN m on the C.1 before);
-   the excitation respects the robot's ``torque_limits`` (none on the Siciliano arm).
+Any URDF arm of actuated revolute joints with a gravity torque (:func:`check_arm`; measured on the
+DFKI C.1, the Siciliano arm, the PUMA 560's first three joints and serial7).
+
+1. The "true" arm (its URDF; Coulomb + viscous friction from its description's
+   ``simulation.plant_friction``, else small defaults: :func:`true_friction`) runs a PD-tracked
+   Fourier excitation (``model_repair.simulated.simulate_experiment``; peak 1 rad about the middle
+   of each joint's limits, clipped at the description's ``torque_limits``: :func:`excitation_for`)
+   for a short time (default 5 s at 250 Hz, 843 rows after the filter's edges) with torque noise
+   of ``noise_fraction`` (2 %) of the arm's largest gravity torque (:func:`torque_noise_std`), so
+   that the identified set is of a size worth a robust design (C.1: draws up to 22 % off the truth
+   in Izz, Siciliano: 9 %).
 2. ``run_repair`` (no effects; LS, or IV where its Hausman test flags errors in variables)
    identifies the base parameters: an :class:`~robust_drake.model_repair.model.IdentifiedModel`
    with covariance.
 3. :func:`robust_drake.uncertainty.confidence.confidence_ellipsoid` turns it into the 1 - alpha
    ellipsoid E(P, theta0) (CI eq. 10); the URDF's base parameters (the truth) must lie inside,
-   else the run stops with an error. Measured over seeds 0-19: with 5 s logs (the default) the
-   99 % set held the truth in 20/20 experiments on both arms (largest radius 1.00 on the C.1 and
-   0.85 on the Siciliano arm at 2 % noise); with 3 s logs only in 18/20 (C.1, radius up to 1.15)
-   and 17/20 (Siciliano, up to 2.56; a Newey-West covariance with 16 lags: 18/20; 10x less
-   noise: 18/20), so shorter logs are refused by ``--duration`` below 5 s. Calibration over 40
-   seeds (Siciliano, errors whitened by each fit's covariance): at 5 s mean |z|^2 = 6.78 for 7
-   expected; at 3 s 10.5 (largest 74), the excess in the link-1 gravity term (its error's variance
-   3.8x the predicted), whose information sits at the slowest frequencies of a 3 s log (edge
-   effects of the filter are a suspect, not checked).
-4. CI eq. 15 (``calafiore`` controller) is built from (theta0, P).
-5. Monte Carlo over the whole set (``experiments.plant_draws``): half the draws on its boundary
-   (||z|| = 1), half uniform inside, each realised as a physically valid plant (inertias changed,
-   masses kept; invalid draws redrawn and counted) whose Drake base parameters equal the draw.
-   Each closed loop (frictionless, exact state, no saturation: the assumptions of the theorem) is
-   compared with the ultimate bound of :func:`ultimate_error_bound` for that plant.
+   else the run stops with an error. Measured: with 5 s logs the 99 % set held the truth in 20/20
+   experiments (seeds 0-19) on both 2-link arms (largest radius 1.00 on the C.1, 0.85 on the
+   Siciliano arm) and in 7/7 on the PUMA (seeds 0-6, radius 0.53-0.97); with 3 s logs only in
+   18/20 (C.1) and 17/20 (Siciliano), so ``--duration`` below 5 s is refused. serial7 (48 base
+   parameters) needs 8 s (seeds 0-3: radius 0.82-1.00; 5 s, seed 0: 1.01). The Panda (43) is not
+   covered even at 8 s (radius 1.08, 0.89, 1.11 for seeds 0-2, IV estimate; the largest whitened
+   errors in the wrist's tiny link-7 inertias): its IV covariance looks too small (not pursued).
+4. CI eq. 15 (``calafiore`` controller) is built from (theta0, P) with the sampled-loop boundary
+   layer (``ultimate_bound.sampled_layer``, M(q) of theta0 from the regressor along the loop's
+   reference): ~100x below the previous rule max ||D E||^2 / min K on the PUMA with the same
+   torque variation (8x smaller chatters).
+5. Monte Carlo over the whole set (``experiments.plant_draws``): half the draws aimed at its
+   boundary (||z|| = 1), half uniform inside, each realised as a physically valid plant (inertias
+   changed, masses kept; a draw no rigid body realises is redrawn, after 20 the nearest valid point
+   of the set replaces it: most of a 3D arm's set is no rigid body). Each closed loop
+   (frictionless, exact state, no saturation: the assumptions of the theorem) is compared, joint
+   by joint, with that plant's per-joint ultimate bound (``ultimate_bound.per_joint_bound``: M(q)
+   on a global grid where at most two joints change M, else on the reference tube).
 """
 
 from __future__ import annotations
@@ -229,7 +236,8 @@ def _identified_set(cfg, out_dir):
     if truth_r > 1.0:
         raise RobustDrakeError(f"{cfg.robot}: the true base parameters lie outside the identified "
                                f"{100 * (1 - cfg.alpha):g} % set (radius {truth_r:.3g}); the experiment "
-                               "does not identify this arm")
+                               "does not identify this arm (a longer --duration or a lower --noise-fraction "
+                               "may)")
     return model, theta0, P, reg, truth, truth_r
 
 
