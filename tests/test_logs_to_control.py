@@ -174,12 +174,12 @@ def test_sampled_layer_is_100x_smaller_without_chattering():
     rule (max ||D E||^2 / min K), with the same torque variation on a drawn plant (measured
     identical to 0.3 %) and a smaller error; 8x smaller still, the sampled loop chatters (waist
     torque variation measured 135x)."""
-    from robust_drake.experiments.logs_to_control import _closed_loop, _design, _identified_set
+    from robust_drake.experiments.logs_to_control import _closed_loop, design_eq15, identified_set
     from robust_drake.experiments.plant_draws import draw_plants
 
     cfg = LogsToControlConfig(robot="puma560_3link")
-    _, theta0, P, reg, _, _ = _identified_set(cfg, None)
-    params, _, _, layer, _ = _design(cfg, reg, theta0, P)
+    _, theta0, P, reg, _, _ = identified_set(cfg, None)
+    params, _, _, layer, _ = design_eq15(cfg, reg, theta0, P)
     assert layer["epsilon"] < 0.05 * layer["previous_rule_epsilon"], layer
     d = draw_plants(reg, theta0, P, 1, np.random.default_rng(0))[0][0]
     tv, err = [], []

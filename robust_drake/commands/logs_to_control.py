@@ -1,8 +1,8 @@
 """``robust-drake logs-to-control``: identified confidence set -> CI eq. 15 -> Monte Carlo vs bound.
 
 A simulated arm with a known truth (any URDF arm of actuated revolute joints with gravity: the DFKI
-C.1, the Siciliano arm, the PUMA 560's first three joints, ...) is identified from a short, noisy log, the 1 - alpha chi2 confidence ellipsoid of the base parameters is built
-(``uncertainty.confidence``), Calafiore & Indri's eq. 15 is designed from it, and plants drawn
+C.1, the Siciliano arm, the PUMA 560's first three joints, ...) is identified from a short, noisy
+log, the 1 - alpha chi2 confidence ellipsoid of the base parameters is built (``uncertainty.confidence``), Calafiore & Indri's eq. 15 is designed from it, and plants drawn
 across the set (half on its boundary, half inside, each a physically valid arm:
 ``experiments.plant_draws``) are tracked; each run's largest error per joint after the transient
 is compared with that joint's ultimate bound (``experiments.ultimate_bound``).
@@ -71,12 +71,13 @@ def run(args) -> int:
     print(f"{args.robot}: {out['samples']} samples, {100 * (1 - args.alpha):g} % set, rho = {out['rho']:.4g}, "
           f"truth at Mahalanobis radius {out['truth_radius']:.3f}")
     print("largest change of a drawn plant from the truth: " + ", ".join(
-        f"{k} {100 * v:.3g} %" for k, v in out["spread"].items()) + f" ({out['rejected']} draws no rigid body "
-        f"realises redrawn, {sum(d['projected'] for d in out['draws'])} replaced by the nearest valid point of the set)")
+        f"{k} {100 * v:.3g} %" for k, v in out["spread"].items()))
+    print(f"{out['rejected']} draws no rigid body realises were redrawn, "
+          f"{sum(d['projected'] for d in out['draws'])} replaced by the nearest valid point of the set")
     print(f"boundary layer epsilon {out['epsilon_rule']['epsilon']:.4g} (previous rule "
           f"{out['epsilon_rule']['previous_rule_epsilon']:.4g}); M(q) over {_region(out['region'])}")
-    rows = [[i, d["kind"] + (" (nearest valid)" if d["projected"] else ""), d["radius"], d["bound"], d["max_error"], d["ratio"], "yes" if d["within"] else "NO"]
-            for i, d in enumerate(out["draws"])]
+    rows = [[i, d["kind"] + (" (nearest valid)" if d["projected"] else ""), d["radius"], d["bound"], d["max_error"],
+             d["ratio"], "yes" if d["within"] else "NO"] for i, d in enumerate(out["draws"])]
     print(format_table(rows, ["draw", "where", "radius", "bound [rad]", "max |e| [rad]", "bound / |e|",
                               "every joint within"]))
     print(f"PD (same K, Lambda) max |e| after the transient: {out['pd_max_error']:.4g} rad")

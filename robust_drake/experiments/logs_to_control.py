@@ -220,7 +220,7 @@ def _spread(draws, theta_true, names):
     return dict(zip([n for n, k in zip(names, keep) if k], rel.max(axis=0).tolist()))
 
 
-def _identified_set(cfg, out_dir):
+def identified_set(cfg, out_dir):
     """(model, theta0, P, regressor, truth, truth radius); stops when the truth is outside."""
     from robust_drake.regressor import InverseDynamicsRegressor
     from robust_drake.uncertainty.confidence import confidence_ellipsoid, mahalanobis_radius
@@ -241,21 +241,24 @@ def _identified_set(cfg, out_dir):
     return model, theta0, P, reg, truth, truth_r
 
 
-def _design(cfg, reg, theta0, P):
+def design_eq15(cfg, reg, theta0, P):
     """Eq. 15's parameters from the set: the ellipsoid and the sampled-loop boundary layer
-    (``ultimate_bound.sampled_layer``, with M(q) of theta0 along the loop's reference); returns (params, K, Lambda, layer info, reference positions)."""
-    from robust_drake.models import ArmSpec
+    (``ultimate_bound.sampled_layer``, with M(q) of theta0 along the loop's reference); returns
+    (controller params, K, Lambda, layer info, reference positions (200, n))."""
     from robust_drake.experiments.ultimate_bound import mass_matrices, sampled_layer
+    from robust_drake.models import ArmSpec
     from robust_drake.trajectories import make_reference
     from robust_drake.uncertainty.ellipsoid import Ellipsoid
 
     ell = Ellipsoid(theta0, P)
     ctrl = _closed_loop_controller(cfg, {"ellipsoid": ell})
     ref = make_reference(ArmSpec(cfg.robot, cfg.robot, reg.n, (), True, None), "sine")
-    q, qd, qdd = (np.asarray(x, float).reshape(-1, reg.n) for x in ref(np.linspace(0.0, cfg.track_duration, 200)))
+    t = np.linspace(0.0, cfg.track_duration, 200)
+    q, qd, qdd = (np.asarray(x, float).reshape(-1, reg.n) for x in ref(t))
     Ms = mass_matrices(reg, theta0, q)
     if np.linalg.eigvalsh(Ms)[:, 0].min() <= 0:
-        raise RobustDrakeError(f"{cfg.robot}: M(q) of the identified centre is not positive definite on the reference")
+        raise RobustDrakeError(f"{cfg.robot}: M(q) of the identified centre is not positive definite "
+                               "on the reference")
     K, Lam = np.asarray(ctrl.K, float), np.asarray(ctrl.Lambda, float)
     eps = sampled_layer(reg.evaluate(q, qd, qdd), ell.E, Ms, K, 1.0 / cfg.rate)
     info = {"epsilon": eps, "previous_rule_epsilon": float(ctrl.epsilon),
@@ -266,9 +269,9 @@ def _design(cfg, reg, theta0, P):
 def _closed_loop_controller(cfg, params):
     from robust_drake.diagram import ClosedLoopConfig, build_closed_loop
 
-    return build_closed_loop(ClosedLoopConfig(robot=cfg.robot, controller="calafiore", controller_params=dict(params),
-                                              trajectory="sine", rate=cfg.rate, duration=cfg.track_duration,
-                                              observer="exact")).controller
+    c = ClosedLoopConfig(robot=cfg.robot, controller="calafiore", controller_params=dict(params),
+                         trajectory="sine", rate=cfg.rate, duration=cfg.track_duration, observer="exact")
+    return build_closed_loop(c).controller
 
 
 def _run_draw(cfg, d, params, K, Lam, region, plant, theta0, P, eps_previous):
@@ -291,8 +294,8 @@ def _run_draw(cfg, d, params, K, Lam, region, plant, theta0, P, eps_previous):
             "within": bool(np.all(ej <= np.asarray(bj))), "diverged": bool(res.diverged),
             "epsilon": float(params["epsilon"]), "norm_bound": norm_bound(params["epsilon"], mb, Lam),
             "previous_bound": norm_bound(eps_previous, mb, Lam),
-            "kappa": mb.kappa, "k_min_over_m_max": mb.k_min / mb.m_max, "sqrt_m_ratio": float(np.sqrt(mb.m_max / mb.m_min)),
-            "minv": list(mb.minv)}
+            "kappa": mb.kappa, "k_min_over_m_max": mb.k_min / mb.m_max,
+            "sqrt_m_ratio": float(np.sqrt(mb.m_max / mb.m_min)), "minv": list(mb.minv)}
 
 
 def run_logs_to_control(cfg: LogsToControlConfig | None = None, out_dir: str | None = None) -> dict:
@@ -306,9 +309,9 @@ def run_logs_to_control(cfg: LogsToControlConfig | None = None, out_dir: str | N
     cfg = cfg or LogsToControlConfig()
     check_arm(cfg.robot)
     rng = np.random.default_rng(cfg.seed)
-    model, theta0, P, reg, truth, truth_r = _identified_set(cfg, out_dir)
+    model, theta0, P, reg, truth, truth_r = identified_set(cfg, out_dir)
     plant = make_plant(cfg.robot)
-    params, K, Lam, layer, q_ref = _design(cfg, reg, theta0, P)
+    params, K, Lam, layer, q_ref = design_eq15(cfg, reg, theta0, P)
     region, region_info = bound_region(plant, q_ref, np.random.default_rng(cfg.seed + 1))
     plants, rejected = draw_plants(reg, theta0, P, cfg.draws, rng, cfg.boundary_share)
     draws = [_run_draw(cfg, d, params, K, Lam, region, plant, theta0, P, layer["previous_rule_epsilon"])

@@ -13,9 +13,13 @@ realised as a plant by changing the URDF's standard parameters pi (theta = K pi,
 then made physically valid where only unidentifiable entries allow it: a body's rotational
 inertia about its centre of mass must be positive semidefinite and satisfy the triangle
 inequality; only the inertia entries K does not see (columns of K equal to zero, e.g. Ixx, Iyy,
-Ixy of a planar arm) are changed for that (:func:`make_physical`). A draw whose reflected rotor inertia would be negative, or
-whose body stays invalid, is rejected and drawn again (counted). Every kept plant's base
-parameters are recomputed by Drake from the modified plant and must equal theta.
+Ixy of a planar arm) are changed for that (:func:`make_physical`). Where that cannot repair a body
+(a 3D arm, whose null space of K mixes several links' entries) a small SDP finds the nearest pi
+with K pi = theta whose every body's pseudo-inertia is positive definite (:class:`PhysicalBySdp`;
+Wensing, Kim & Slotine 2018). A draw no rigid body with these masses realises is drawn again
+(counted); after ``tries`` of them the nearest valid point of the set replaces it
+(:class:`NearestPhysical`). Every kept plant's base parameters are recomputed by Drake from the
+modified plant and must equal theta.
 """
 
 from __future__ import annotations
