@@ -174,7 +174,7 @@ def test_sampled_layer_is_100x_smaller_without_chattering():
     rule (max ||D E||^2 / min K), with the same torque variation on a drawn plant (measured
     identical to 0.3 %) and a smaller error; 8x smaller still, the sampled loop chatters (waist
     torque variation measured 135x)."""
-    from robust_drake.experiments.logs_to_control import _closed_loop, design_eq15, identified_set
+    from robust_drake.experiments.logs_to_control import track_plant, design_eq15, identified_set
     from robust_drake.experiments.plant_draws import draw_plants
 
     cfg = LogsToControlConfig(robot="puma560_3link")
@@ -184,7 +184,7 @@ def test_sampled_layer_is_100x_smaller_without_chattering():
     d = draw_plants(reg, theta0, P, 1, np.random.default_rng(0))[0][0]
     tv, err = [], []
     for eps in (layer["previous_rule_epsilon"], layer["epsilon"], layer["epsilon"] / 8):
-        _, res = _closed_loop(cfg, "calafiore", dict(params, epsilon=eps), d.setup)
+        _, res = track_plant(cfg, "calafiore", dict(params, epsilon=eps), d.setup)
         keep = res.t >= cfg.transient
         tv.append(np.abs(np.diff(np.asarray(res.u)[keep], axis=0)).sum(axis=0))
         err.append(np.abs(res.q - res.q_d)[keep].max())

@@ -2,7 +2,8 @@
 
 A simulated arm with a known truth (any URDF arm of actuated revolute joints with gravity: the DFKI
 C.1, the Siciliano arm, the PUMA 560's first three joints, ...) is identified from a short, noisy
-log, the 1 - alpha chi2 confidence ellipsoid of the base parameters is built (``uncertainty.confidence``), Calafiore & Indri's eq. 15 is designed from it, and plants drawn
+log, the 1 - alpha chi2 confidence ellipsoid of the base parameters is built
+(``uncertainty.confidence``), Calafiore & Indri's eq. 15 is designed from it, and plants drawn
 across the set (half on its boundary, half inside, each a physically valid arm:
 ``experiments.plant_draws``) are tracked; each run's largest error per joint after the transient
 is compared with that joint's ultimate bound (``experiments.ultimate_bound``).

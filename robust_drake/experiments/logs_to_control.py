@@ -200,7 +200,10 @@ def mass_extremes(robot, setup, q_grid):
     return float(eig[:, 0].min()), float(eig[:, -1].max())
 
 
-def _closed_loop(cfg, controller, params, setup):
+def track_plant(cfg, controller, params, setup):
+    """(loop, result) of ``controller`` (registry name, ``params``) tracking the "sine" reference
+    on the plant modified by ``setup(plant, context)``: frictionless, exact state, no saturation
+    (the assumptions of the bound)."""
     from robust_drake.diagram import ClosedLoopConfig, build_closed_loop
 
     c = ClosedLoopConfig(robot=cfg.robot, controller=controller, controller_params=dict(params),
@@ -281,7 +284,7 @@ def _run_draw(cfg, d, params, K, Lam, region, plant, theta0, P, eps_previous):
     from robust_drake.experiments.ultimate_bound import mass_bounds, norm_bound, per_joint_bound
     from robust_drake.uncertainty.confidence import mahalanobis_radius
 
-    _, res = _closed_loop(cfg, "calafiore", params, d.setup)
+    _, res = track_plant(cfg, "calafiore", params, d.setup)
     ctx = plant.CreateDefaultContext()
     d.setup(plant, ctx)
     mb = mass_bounds(plant, ctx, region, K)
@@ -318,7 +321,7 @@ def run_logs_to_control(cfg: LogsToControlConfig | None = None, out_dir: str | N
              for d in plants]
     if region_info["kind"] == "tube":
         region_info["consistent"] = bool(all(max(d["bound_per_joint"]) <= region_info["delta"] for d in draws))
-    _, pd = _closed_loop(cfg, "pd", {"K": K.tolist(), "Lambda": Lam.tolist()}, lambda plant, ctx: None)
+    _, pd = track_plant(cfg, "pd", {"K": K.tolist(), "Lambda": Lam.tolist()}, lambda plant, ctx: None)
     pd_err = float(np.max(np.abs(pd.q - pd.q_d)[pd.t >= cfg.transient]))
     return {"robot": cfg.robot, "alpha": cfg.alpha, "samples": int(model.data.get("samples", 0)),
             "estimator": model.estimator,
