@@ -71,8 +71,9 @@ def run(args) -> int:
         return 0
     print(f"{args.robot}: {out['samples']} samples, {100 * (1 - args.alpha):g} % set, rho = {out['rho']:.4g}, "
           f"truth at Mahalanobis radius {out['truth_radius']:.3f}")
-    print("largest change of a drawn plant from the truth: " + ", ".join(
-        f"{k} {100 * v:.3g} %" for k, v in out["spread"].items()))
+    top = sorted(out["spread"].items(), key=lambda kv: -kv[1])[:5]
+    print(f"largest changes of a drawn plant from the truth ({len(out['spread'])} parameters, 5 largest; all "
+          "in --json): " + ", ".join(f"{k if len(k) <= 40 else k[:37] + '...'} {100 * v:.3g} %" for k, v in top))
     print(f"{out['rejected']} draws no rigid body realises were redrawn, "
           f"{sum(d['projected'] for d in out['draws'])} replaced by the nearest valid point of the set")
     print(f"boundary layer epsilon {out['epsilon_rule']['epsilon']:.4g} (previous rule "
