@@ -1,11 +1,12 @@
 """``robust-drake logs-to-control``: identified confidence set -> CI eq. 15 -> Monte Carlo vs bound.
 
-A simulated 2-link arm with a known truth (the DFKI C.1 or the Siciliano arm) is identified from a
-short, noisy log, the 1 - alpha chi2 confidence ellipsoid of the base parameters is built
+A simulated arm with a known truth (any URDF arm of actuated revolute joints with gravity: the DFKI
+C.1, the Siciliano arm, the PUMA 560's first three joints, ...) is identified from a short, noisy
+log, the 1 - alpha chi2 confidence ellipsoid of the base parameters is built
 (``uncertainty.confidence``), Calafiore & Indri's eq. 15 is designed from it, and plants drawn
 across the set (half on its boundary, half inside, each a physically valid arm:
-``experiments.plant_draws``) are tracked; each run's largest joint error after the transient is
-compared with the ultimate bound (``experiments.logs_to_control``).
+``experiments.plant_draws``) are tracked; each run's largest error per joint after the transient
+is compared with that joint's ultimate bound (``experiments.ultimate_bound``).
 """
 
 from __future__ import annotations
@@ -13,16 +14,17 @@ from __future__ import annotations
 from robust_drake.cli import add_output_flags, format_table, print_json
 from robust_drake.errors import RobustDrakeError
 
-def register(sub):
-    from robust_drake.experiments.logs_to_control import ROBOTS
 
+def register(sub):
     p = sub.add_parser(
         "logs-to-control", help="identified confidence set -> robust controller -> Monte Carlo within the bound",
-        description="Simulate an identification experiment on a 2-link arm with a known truth, identify its "
+        description="Simulate an identification experiment on an arm with a known truth, identify its "
                     "base parameters, build their chi2 confidence ellipsoid, design Calafiore & Indri's eq. 15 "
                     "from it, and run plants drawn across the set (half on its boundary, inertias changed, each a "
-                    "physically valid arm) against the ultimate tracking-error bound of the theory.")
-    p.add_argument("--robot", default=ROBOTS[0], choices=ROBOTS, help=f"2-link arm (default {ROBOTS[0]})")
+                    "physically valid arm) against the per-joint ultimate tracking-error bound of the theory.")
+    p.add_argument("--robot", default="dfki_double_pendulum_c1",
+                   help="arm of actuated revolute joints with gravity: a robot name or a URDF path "
+                        "(default dfki_double_pendulum_c1; e.g. siciliano_2link, puma560_3link)")
     p.add_argument("--noise-fraction", type=float, default=0.02,
                    help="torque noise std of the experiment / largest gravity torque of the arm (default 0.02)")
     p.add_argument("--boundary-share", type=float, default=0.5,
@@ -69,12 +71,25 @@ def run(args) -> int:
         return 0
     print(f"{args.robot}: {out['samples']} samples, {100 * (1 - args.alpha):g} % set, rho = {out['rho']:.4g}, "
           f"truth at Mahalanobis radius {out['truth_radius']:.3f}")
-    print("largest change of a drawn plant from the truth: " + ", ".join(
-        f"{k} {100 * v:.3g} %" for k, v in out["spread"].items()) + f" ({out['rejected']} invalid draws redrawn)")
-    rows = [[i, d["kind"], d["radius"], d["bound"], d["max_error"], "yes" if d["max_error"] <= d["bound"] else "NO"]
-            for i, d in enumerate(out["draws"])]
-    print(format_table(rows, ["draw", "where", "radius", "bound [rad]", "max |e| [rad]", "within"]))
+    top = sorted(out["spread"].items(), key=lambda kv: -kv[1])[:5]
+    print(f"largest changes of a drawn plant from the truth ({len(out['spread'])} parameters, 5 largest; all "
+          "in --json): " + ", ".join(f"{k if len(k) <= 40 else k[:37] + '...'} {100 * v:.3g} %" for k, v in top))
+    print(f"{out['rejected']} draws no rigid body realises were redrawn, "
+          f"{sum(d['projected'] for d in out['draws'])} replaced by the nearest valid point of the set")
+    print(f"boundary layer epsilon {out['epsilon_rule']['epsilon']:.4g} (previous rule "
+          f"{out['epsilon_rule']['previous_rule_epsilon']:.4g}); M(q) over {_region(out['region'])}")
+    rows = [[i, d["kind"] + (" (nearest valid)" if d["projected"] else ""), d["radius"], d["bound"], d["max_error"],
+             d["ratio"], "yes" if d["within"] else "NO"] for i, d in enumerate(out["draws"])]
+    print(format_table(rows, ["draw", "where", "radius", "bound [rad]", "max |e| [rad]", "bound / |e|",
+                              "every joint within"]))
     print(f"PD (same K, Lambda) max |e| after the transient: {out['pd_max_error']:.4g} rad")
     if plots is not None:
         print(f"figure: {out['plot']}")
     return 0
+
+
+def _region(r) -> str:
+    if r["kind"] == "global":
+        return f"a global grid of joints {r['joints']}"
+    return (f"the reference tube +- {r['delta']} rad (bound {'inside' if r.get('consistent') else 'OUTSIDE'} "
+            "the tube)")

@@ -1,32 +1,39 @@
 """From logs to a guaranteed controller, on a simulated arm with a known truth.
 
-1. A "true" 2-link arm (URDF, Coulomb + viscous friction; ``ROBOTS``) runs a PD-tracked Fourier
-   excitation (``model_repair.simulated.simulate_experiment``) for a short time (default 5 s at
-   250 Hz, 843 rows after the filter's edges) with torque noise of ``noise_fraction`` (2 %) of the
-   arm's largest gravity torque, so that the identified set is of a size worth a robust design
-   (C.1: draws up to 22 % off the truth in Izz, Siciliano: 9 %; against ~0.1 % in link masses
-   with 8 s and 5 mN m on the C.1 before);
-   the excitation respects the robot's ``torque_limits`` (none on the Siciliano arm).
+Any URDF arm of actuated revolute joints with a gravity torque (:func:`check_arm`; measured on the
+DFKI C.1, the Siciliano arm, the PUMA 560's first three joints and serial7).
+
+1. The "true" arm (its URDF; Coulomb + viscous friction from its description's
+   ``simulation.plant_friction``, else small defaults: :func:`true_friction`) runs a PD-tracked
+   Fourier excitation (``model_repair.simulated.simulate_experiment``; peak 1 rad about the middle
+   of each joint's limits, clipped at the description's ``torque_limits``: :func:`excitation_for`)
+   for a short time (default 5 s at 250 Hz, 843 rows after the filter's edges) with torque noise
+   of ``noise_fraction`` (2 %) of the arm's largest gravity torque (:func:`torque_noise_std`), so
+   that the identified set is of a size worth a robust design (C.1: draws up to 22 % off the truth
+   in Izz, Siciliano: 9 %).
 2. ``run_repair`` (no effects; LS, or IV where its Hausman test flags errors in variables)
    identifies the base parameters: an :class:`~robust_drake.model_repair.model.IdentifiedModel`
    with covariance.
 3. :func:`robust_drake.uncertainty.confidence.confidence_ellipsoid` turns it into the 1 - alpha
    ellipsoid E(P, theta0) (CI eq. 10); the URDF's base parameters (the truth) must lie inside,
-   else the run stops with an error. Measured over seeds 0-19: with 5 s logs (the default) the
-   99 % set held the truth in 20/20 experiments on both arms (largest radius 1.00 on the C.1 and
-   0.85 on the Siciliano arm at 2 % noise); with 3 s logs only in 18/20 (C.1, radius up to 1.15)
-   and 17/20 (Siciliano, up to 2.56; a Newey-West covariance with 16 lags: 18/20; 10x less
-   noise: 18/20), so shorter logs are refused by ``--duration`` below 5 s. Calibration over 40
-   seeds (Siciliano, errors whitened by each fit's covariance): at 5 s mean |z|^2 = 6.78 for 7
-   expected; at 3 s 10.5 (largest 74), the excess in the link-1 gravity term (its error's variance
-   3.8x the predicted), whose information sits at the slowest frequencies of a 3 s log (edge
-   effects of the filter are a suspect, not checked).
-4. CI eq. 15 (``calafiore`` controller) is built from (theta0, P).
-5. Monte Carlo over the whole set (``experiments.plant_draws``): half the draws on its boundary
-   (||z|| = 1), half uniform inside, each realised as a physically valid plant (inertias changed,
-   masses kept; invalid draws redrawn and counted) whose Drake base parameters equal the draw.
-   Each closed loop (frictionless, exact state, no saturation: the assumptions of the theorem) is
-   compared with the ultimate bound of :func:`ultimate_error_bound` for that plant.
+   else the run stops with an error. Measured: with 5 s logs the 99 % set held the truth in 20/20
+   experiments (seeds 0-19) on both 2-link arms (largest radius 1.00 on the C.1, 0.85 on the
+   Siciliano arm) and in 7/7 on the PUMA (seeds 0-6, radius 0.53-0.97); with 3 s logs only in
+   18/20 (C.1) and 17/20 (Siciliano), so ``--duration`` below 5 s is refused. serial7 (48 base
+   parameters) needs 8 s (seeds 0-3: radius 0.82-1.00; 5 s, seed 0: 1.01). The Panda (43) is not
+   covered even at 8 s (radius 1.08, 0.89, 1.11 for seeds 0-2, IV estimate; the largest whitened
+   errors in the wrist's tiny link-7 inertias): its IV covariance looks too small (not pursued).
+4. CI eq. 15 (``calafiore`` controller) is built from (theta0, P) with the sampled-loop boundary
+   layer (``ultimate_bound.sampled_layer``, M(q) of theta0 from the regressor along the loop's
+   reference): ~100x below the previous rule max ||D E||^2 / min K on the PUMA with the same
+   torque variation (8x smaller chatters).
+5. Monte Carlo over the whole set (``experiments.plant_draws``): half the draws aimed at its
+   boundary (||z|| = 1), half uniform inside, each realised as a physically valid plant (inertias
+   changed, masses kept; a draw no rigid body realises is redrawn, after 20 the nearest valid point
+   of the set replaces it: most of a 3D arm's set is no rigid body). Each closed loop
+   (frictionless, exact state, no saturation: the assumptions of the theorem) is compared, joint
+   by joint, with that plant's per-joint ultimate bound (``ultimate_bound.per_joint_bound``: M(q)
+   on a global grid where at most two joints change M, else on the reference tube).
 """
 
 from __future__ import annotations
@@ -41,24 +48,14 @@ from robust_drake.errors import RobustDrakeError
 
 
 def ultimate_error_bound(K, Lambda, epsilon: float, m_min: float, m_max: float) -> float:
-    """Ultimate bound on max_i |e_i| [rad] of CI eq. 15 with boundary layer epsilon.
-
-    With V = 1/2 r^T M r (JS seed 001, eq. 20, Spong [11]) and theta~ = E z, ||z|| <= 1, the
-    uncertain term r^T D (theta~ + u) is <= ||w|| - ||w||^2 / epsilon <= epsilon / 4 inside the layer
-    (w = E^T D^T r) and <= 0 outside, so dV/dt <= -k_min ||r||^2 + epsilon / 4. V decreases outside
-    ||r||^2 = epsilon / (4 k_min); hence ultimately ||r|| <= sqrt(m_max / m_min) sqrt(epsilon / (4 k_min))
-    (m_min, m_max: extreme eigenvalues of M(q) [kg m^2]) and, as each e_i is a first-order filter
-    of r_i with pole -lambda_i, |e_i| <= ||r|| / lambda_min.
-    """
+    """Norm bound on max_i |e_i| [rad] of CI eq. 15 with boundary layer epsilon (the first
+    version; derivation in :mod:`robust_drake.experiments.ultimate_bound`, which also gives the
+    tighter per-joint bound the loop now checks): sqrt(m_max / m_min) sqrt(epsilon / (4 k_min)) /
+    lambda_min (m_min, m_max: extreme eigenvalues of M(q) [kg m^2])."""
     k_min = float(np.min(np.diag(np.atleast_2d(K)) if np.ndim(K) == 2 else np.min(K)))
     l_min = float(np.min(np.diag(np.atleast_2d(Lambda)) if np.ndim(Lambda) == 2 else np.min(Lambda)))
     r_bound = np.sqrt(m_max / m_min) * np.sqrt(epsilon / (4.0 * k_min))
     return float(r_bound / l_min)
-
-
-#: 2-link arms whose M(q) depends on the elbow angle only (the bound's q grid) and whose simulated
-#: experiment identifies them
-ROBOTS = ("dfki_double_pendulum_c1", "siciliano_2link")
 
 
 @dataclass
@@ -75,15 +72,91 @@ class LogsToControlConfig:
     seed: int = 0
 
 
-def torque_noise_std(robot, fraction: float) -> float:
-    """``fraction`` x max over q of |g(q)| [N m] of the URDF arm (elbow and shoulder on a grid)."""
+def check_arm(robot):
+    """The arm's :class:`~robust_drake.description.RobotDescription`; a one-line error naming what
+    is missing when the loop cannot run on it: a URDF (a known robot or a path), actuated revolute
+    joints only, and a gravity torque (the experiment's torque noise is a fraction of the largest
+    one)."""
+    from pydrake.multibody.tree import JointIndex
+
+    from robust_drake.description import describe
+    from robust_drake.models import make_plant, resolve_urdf
+
+    resolve_urdf(robot)  # one-line error for an unknown robot or a missing file
+    plant = make_plant(robot)
+    kinds = {plant.get_joint(JointIndex(i)).type_name() for i in range(plant.num_joints())} - {"weld"}
+    if kinds != {"revolute"} or plant.num_actuators() != plant.num_velocities():
+        raise RobustDrakeError(f"logs-to-control needs an arm of actuated revolute joints; {robot!r} has "
+                               f"{sorted(kinds)} joints and {plant.num_actuators()} actuators for "
+                               f"{plant.num_velocities()} velocities")
+    if np.linalg.norm(plant.gravity_field().gravity_vector()) == 0 or not _has_gravity_torque(plant):
+        raise RobustDrakeError(f"logs-to-control sets the experiment's torque noise as a fraction of the "
+                               f"arm's largest gravity torque; {robot!r} has none (an arm moving in a "
+                               "horizontal plane)")
+    return describe(robot)
+
+
+def _has_gravity_torque(plant, tries: int = 20) -> bool:
+    ctx = plant.CreateDefaultContext()
+    rng = np.random.default_rng(0)
+    for _ in range(tries):
+        plant.SetPositions(ctx, rng.uniform(-np.pi, np.pi, plant.num_positions()))
+        if np.abs(plant.CalcGravityGeneralizedForces(ctx)).max() > 1e-9:
+            return True
+    return False
+
+
+def _limits(plant):
+    lo, hi = plant.GetPositionLowerLimits(), plant.GetPositionUpperLimits()
+    finite = np.isfinite(lo) & np.isfinite(hi)
+    return np.where(finite, lo, -np.pi), np.where(finite, hi, np.pi), finite
+
+
+def torque_noise_std(robot, fraction: float, samples: int = 4000) -> float:
+    """``fraction`` x max over q of |g(q)| [N m] of the URDF arm: q on a 25-point grid per joint
+    within its limits ([-pi, pi] where it has none) up to 2 joints, else ``samples`` random
+    configurations within the limits (seed 0)."""
+    from robust_drake.models import make_plant
     from robust_drake.regressor import InverseDynamicsRegressor
 
     reg = InverseDynamicsRegressor.from_robot(robot)
-    g = np.linspace(-np.pi, np.pi, 25)
-    q = np.array([(a, b) for a in g for b in g])
+    lo, hi, _ = _limits(make_plant(robot))
+    if reg.n <= 2:
+        axes = np.meshgrid(*[np.linspace(a, b, 25) for a, b in zip(lo, hi)], indexing="ij")
+        q = np.stack([a.ravel() for a in axes], axis=1)
+    else:
+        q = np.random.default_rng(0).uniform(lo, hi, size=(samples, reg.n))
     z = np.zeros_like(q)
     return float(fraction * np.abs(reg.evaluate(q, z, z) @ reg.base_parameters()).max())
+
+
+def excitation_for(robot) -> dict:
+    """Fourier excitation of the identification experiment, from the arm: peak excursion 1.0 rad
+    (1.3 on the last joint: the generator's 2-link default) about the middle of each joint's
+    limits, at most 0.4 x its range (joints without limits: about 0); the PD excitation clipped at
+    the description's ``torque_limits`` (per joint; none declared: not clipped)."""
+    from robust_drake.models import make_plant
+
+    desc = check_arm(robot)
+    lo, hi, finite = _limits(make_plant(robot))
+    amp = np.ones(len(lo))
+    amp[-1] = 1.3
+    amp = np.where(finite, np.minimum(amp, 0.4 * (hi - lo)), amp)
+    lim = desc.torque_limits
+    return {"amplitude": tuple(amp.tolist()),
+            "offset": tuple(np.where(finite, 0.5 * (lo + hi), 0.0).tolist()) if finite.any() else None,
+            "torque_limit": None if lim is None else np.asarray(lim, float)}
+
+
+def true_friction(robot, n: int):
+    """(Coulomb [N m], viscous [N m s/rad]) per joint of the simulated truth: the description's
+    ``simulation.plant_friction`` when it declares one, else the generator's 2-link defaults
+    (0.08, 0.05 N m; 0.004, 0.002 N m s/rad), the second joint's value on joints beyond."""
+    pf = check_arm(robot).plant_friction
+    if pf is not None:
+        return tuple(pf["coulomb"]), tuple(pf["viscous"])
+    c, v = [0.08, 0.05], [0.004, 0.002]
+    return tuple((c + [c[-1]] * n)[:n]), tuple((v + [v[-1]] * n)[:n])
 
 
 def identify(cfg: LogsToControlConfig, out_dir: str):
@@ -95,16 +168,16 @@ def identify(cfg: LogsToControlConfig, out_dir: str):
     *torque prediction*, for which the attenuated least-squares fit can win on equally noisy
     validation columns, while a confidence set for the parameters needs the consistent estimate
     (with the rule on, C.1 keeps least squares with Hausman 503 > 15.1 and the set is refused)."""
-    from robust_drake.description import describe
     from robust_drake.model_repair.model import IdentifiedModel
     from robust_drake.model_repair.pipeline import RepairOptions, run_repair
     from robust_drake.model_repair.simulated import simulate_experiment
 
     path = os.path.join(out_dir, "fit.csv")
-    limits = describe(cfg.robot).torque_limits
+    exc = excitation_for(cfg.robot)
+    coulomb, viscous = true_friction(cfg.robot, len(exc["amplitude"]))
     simulate_experiment(robot=cfg.robot, duration=cfg.duration, seed=cfg.seed, out_csv=path,
                         torque_noise_std=torque_noise_std(cfg.robot, cfg.noise_fraction),
-                        excitation={"torque_limit": None if limits is None else float(min(limits))})
+                        excitation=exc, coulomb=coulomb, viscous=viscous)
     opts = RepairOptions(robot=cfg.robot, max_effects=0, kinds=[], replay=False, plots=False,
                          instruments=True, nominal=False, consistent=False,
                          never_worse_tol=float("inf"))
@@ -127,7 +200,10 @@ def mass_extremes(robot, setup, q_grid):
     return float(eig[:, 0].min()), float(eig[:, -1].max())
 
 
-def _closed_loop(cfg, controller, params, setup):
+def track_plant(cfg, controller, params, setup):
+    """(loop, result) of ``controller`` (registry name, ``params``) tracking the "sine" reference
+    on the plant modified by ``setup(plant, context)``: frictionless, exact state, no saturation
+    (the assumptions of the bound)."""
     from robust_drake.diagram import ClosedLoopConfig, build_closed_loop
 
     c = ClosedLoopConfig(robot=cfg.robot, controller=controller, controller_params=dict(params),
@@ -147,19 +223,11 @@ def _spread(draws, theta_true, names):
     return dict(zip([n for n, k in zip(names, keep) if k], rel.max(axis=0).tolist()))
 
 
-def run_logs_to_control(cfg: LogsToControlConfig | None = None, out_dir: str | None = None) -> dict:
-    """The whole loop; returns a JSON-able dict (keys ``uncertainty``, ``rho``, ``bound``,
-    ``draws``, ``max_error``, ``truth_radius``, ``pd_max_error``, ``spread``, ``rejected``)."""
-    from robust_drake.experiments.plant_draws import draw_plants
+def identified_set(cfg, out_dir):
+    """(model, theta0, P, regressor, truth, truth radius); stops when the truth is outside."""
     from robust_drake.regressor import InverseDynamicsRegressor
     from robust_drake.uncertainty.confidence import confidence_ellipsoid, mahalanobis_radius
-    from robust_drake.uncertainty.ellipsoid import Ellipsoid
 
-    cfg = cfg or LogsToControlConfig()
-    if cfg.robot not in ROBOTS:
-        raise RobustDrakeError(f"logs-to-control runs on {', '.join(ROBOTS)} (the bound's M(q) grid is "
-                               f"over the elbow angle of a 2-link arm); got {cfg.robot!r}")
-    rng = np.random.default_rng(cfg.seed)
     with tempfile.TemporaryDirectory() as tmp:
         model = identify(cfg, out_dir or tmp)
     theta0, P = confidence_ellipsoid(model, cfg.alpha)
@@ -171,30 +239,100 @@ def run_logs_to_control(cfg: LogsToControlConfig | None = None, out_dir: str | N
     if truth_r > 1.0:
         raise RobustDrakeError(f"{cfg.robot}: the true base parameters lie outside the identified "
                                f"{100 * (1 - cfg.alpha):g} % set (radius {truth_r:.3g}); the experiment "
-                               "does not identify this arm")
+                               "does not identify this arm (a longer --duration or a lower --noise-fraction "
+                               "may)")
+    return model, theta0, P, reg, truth, truth_r
+
+
+def design_eq15(cfg, reg, theta0, P):
+    """Eq. 15's parameters from the set: the ellipsoid and the sampled-loop boundary layer
+    (``ultimate_bound.sampled_layer``, with M(q) of theta0 along the loop's reference); returns
+    (controller params, K, Lambda, layer info, reference positions (200, n))."""
+    from robust_drake.experiments.ultimate_bound import mass_matrices, sampled_layer
+    from robust_drake.models import ArmSpec
+    from robust_drake.trajectories import make_reference
+    from robust_drake.uncertainty.ellipsoid import Ellipsoid
+
     ell = Ellipsoid(theta0, P)
-    q_grid = [np.array([0.0, q2]) for q2 in np.linspace(-np.pi, np.pi, 73)]
+    ctrl = _closed_loop_controller(cfg, {"ellipsoid": ell})
+    ref = make_reference(ArmSpec(cfg.robot, cfg.robot, reg.n, (), True, None), "sine")
+    t = np.linspace(0.0, cfg.track_duration, 200)
+    q, qd, qdd = (np.asarray(x, float).reshape(-1, reg.n) for x in ref(t))
+    Ms = mass_matrices(reg, theta0, q)
+    if np.linalg.eigvalsh(Ms)[:, 0].min() <= 0:
+        raise RobustDrakeError(f"{cfg.robot}: M(q) of the identified centre is not positive definite "
+                               "on the reference")
+    K, Lam = np.asarray(ctrl.K, float), np.asarray(ctrl.Lambda, float)
+    eps = sampled_layer(reg.evaluate(q, qd, qdd), ell.E, Ms, K, 1.0 / cfg.rate)
+    info = {"epsilon": eps, "previous_rule_epsilon": float(ctrl.epsilon),
+            "rule": "sampled-loop margin epsilon = g_max h / (beta - h k_max) (ultimate_bound.sampled_layer)"}
+    return {"ellipsoid": ell, "epsilon": eps}, K, Lam, info, q
+
+
+def _closed_loop_controller(cfg, params):
+    from robust_drake.diagram import ClosedLoopConfig, build_closed_loop
+
+    c = ClosedLoopConfig(robot=cfg.robot, controller="calafiore", controller_params=dict(params),
+                         trajectory="sine", rate=cfg.rate, duration=cfg.track_duration, observer="exact")
+    return build_closed_loop(c).controller
+
+
+def _run_draw(cfg, d, params, K, Lam, region, plant, theta0, P, eps_previous):
+    """One drawn plant under eq. 15: its per-joint bound and its errors after the transient, with
+    the factors of the bound (``norm_bound``: the first version's formula at the same epsilon,
+    ``previous_bound``: that formula at the previous rule's epsilon)."""
+    from robust_drake.experiments.ultimate_bound import mass_bounds, norm_bound, per_joint_bound
+    from robust_drake.uncertainty.confidence import mahalanobis_radius
+
+    _, res = track_plant(cfg, "calafiore", params, d.setup)
+    ctx = plant.CreateDefaultContext()
+    d.setup(plant, ctx)
+    mb = mass_bounds(plant, ctx, region, K)
+    bj = per_joint_bound(params["epsilon"], mb, Lam)
+    ej = np.abs(res.q - res.q_d)[res.t >= cfg.transient].max(axis=0)
+    return {"kind": d.kind, "radius": mahalanobis_radius(theta0, P, d.theta), "theta": d.theta.tolist(),
+            "projected": bool(d.projected),
+            "bound": max(bj), "max_error": float(ej.max()), "ratio": float(max(bj) / ej.max()),
+            "bound_per_joint": bj, "max_error_per_joint": ej.tolist(),
+            "within": bool(np.all(ej <= np.asarray(bj))), "diverged": bool(res.diverged),
+            "epsilon": float(params["epsilon"]), "norm_bound": norm_bound(params["epsilon"], mb, Lam),
+            "previous_bound": norm_bound(eps_previous, mb, Lam),
+            "kappa": mb.kappa, "k_min_over_m_max": mb.k_min / mb.m_max,
+            "sqrt_m_ratio": float(np.sqrt(mb.m_max / mb.m_min)), "minv": list(mb.minv)}
+
+
+def run_logs_to_control(cfg: LogsToControlConfig | None = None, out_dir: str | None = None) -> dict:
+    """The whole loop; returns a JSON-able dict (keys ``uncertainty``, ``rho``, ``bound``,
+    ``draws``, ``max_error``, ``truth_radius``, ``pd_max_error``, ``spread``, ``rejected``,
+    ``region``, ``epsilon_rule``)."""
+    from robust_drake.experiments.plant_draws import draw_plants
+    from robust_drake.experiments.ultimate_bound import bound_region
+    from robust_drake.models import make_plant
+
+    cfg = cfg or LogsToControlConfig()
+    check_arm(cfg.robot)
+    rng = np.random.default_rng(cfg.seed)
+    model, theta0, P, reg, truth, truth_r = identified_set(cfg, out_dir)
+    plant = make_plant(cfg.robot)
+    params, K, Lam, layer, q_ref = design_eq15(cfg, reg, theta0, P)
+    region, region_info = bound_region(plant, q_ref, np.random.default_rng(cfg.seed + 1))
     plants, rejected = draw_plants(reg, theta0, P, cfg.draws, rng, cfg.boundary_share)
-    draws = []
-    for d in plants:
-        loop, res = _closed_loop(cfg, "calafiore", {"ellipsoid": ell}, d.setup)
-        c = loop.controller
-        m_min, m_max = mass_extremes(cfg.robot, d.setup, q_grid)
-        bound = ultimate_error_bound(c.K, c.Lambda, c.epsilon, m_min, m_max)
-        err = float(np.max(np.abs(res.q - res.q_d)[res.t >= cfg.transient]))
-        draws.append({"kind": d.kind, "radius": mahalanobis_radius(theta0, P, d.theta),
-                      "theta": d.theta.tolist(), "bound": bound, "max_error": err,
-                      "diverged": bool(res.diverged), "epsilon": float(c.epsilon)})
-    _, pd = _closed_loop(cfg, "pd", {}, lambda plant, ctx: None)
+    draws = [_run_draw(cfg, d, params, K, Lam, region, plant, theta0, P, layer["previous_rule_epsilon"])
+             for d in plants]
+    if region_info["kind"] == "tube":
+        region_info["consistent"] = bool(all(max(d["bound_per_joint"]) <= region_info["delta"] for d in draws))
+    _, pd = track_plant(cfg, "pd", {"K": K.tolist(), "Lambda": Lam.tolist()}, lambda plant, ctx: None)
     pd_err = float(np.max(np.abs(pd.q - pd.q_d)[pd.t >= cfg.transient]))
     return {"robot": cfg.robot, "alpha": cfg.alpha, "samples": int(model.data.get("samples", 0)),
+            "estimator": model.estimator,
             "uncertainty": {"kind": "ellipsoid", "source": f"chi2 {1 - cfg.alpha:g} confidence set of the "
                             "identified base parameters (N/N_eff-inflated covariance)",
                             "parameters": list(model.base_names), "theta0": theta0.tolist(), "P": P.tolist()},
             "rho": float(np.sqrt(np.linalg.eigvalsh(P)[-1])), "truth_radius": truth_r,
             "theta_true": truth.tolist(), "bound": max(d["bound"] for d in draws),
             "max_error": max(d["max_error"] for d in draws), "draws": draws, "rejected": rejected,
-            "spread": _spread(plants, truth, list(reg.base_names)), "pd_max_error": pd_err}
+            "spread": _spread(plants, truth, list(reg.base_names)), "pd_max_error": pd_err,
+            "region": region_info, "epsilon_rule": layer, "K": K.tolist(), "Lambda": Lam.tolist()}
 
 
 def plot_logs_to_control(out: dict, path) -> str:

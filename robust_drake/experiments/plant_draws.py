@@ -13,9 +13,13 @@ realised as a plant by changing the URDF's standard parameters pi (theta = K pi,
 then made physically valid where only unidentifiable entries allow it: a body's rotational
 inertia about its centre of mass must be positive semidefinite and satisfy the triangle
 inequality; only the inertia entries K does not see (columns of K equal to zero, e.g. Ixx, Iyy,
-Ixy of a planar arm) are changed for that (:func:`make_physical`). A draw whose reflected rotor inertia would be negative, or
-whose body stays invalid, is rejected and drawn again (counted). Every kept plant's base
-parameters are recomputed by Drake from the modified plant and must equal theta.
+Ixy of a planar arm) are changed for that (:func:`make_physical`). Where that cannot repair a body
+(a 3D arm, whose null space of K mixes several links' entries) a small SDP finds the nearest pi
+with K pi = theta whose every body's pseudo-inertia is positive definite (:class:`PhysicalBySdp`;
+Wensing, Kim & Slotine 2018). A draw no rigid body with these masses realises is drawn again
+(counted); after ``tries`` of them the nearest valid point of the set replaces it
+(:class:`NearestPhysical`). Every kept plant's base parameters are recomputed by Drake from the
+modified plant and must equal theta.
 """
 
 from __future__ import annotations
@@ -37,6 +41,7 @@ class PlantDraw:
     kind: str
     pi: np.ndarray
     setup: object
+    projected: bool = False
 
 
 def _allowed(reg) -> np.ndarray:
@@ -50,10 +55,8 @@ def _allowed(reg) -> np.ndarray:
     return ok
 
 
-def standard_for_base(reg, theta, pi_nom=None) -> np.ndarray:
-    """pi with K pi = theta, nearest to pi_nom in relative terms (module docstring)."""
-    pi_nom = reg.standard_parameters() if pi_nom is None else np.asarray(pi_nom, float)
-    K = np.asarray(reg.K, float)
+def _weights(reg, pi_nom) -> np.ndarray:
+    """W of the module docstring (0 on the entries a draw keeps)."""
     w = np.where(_allowed(reg), pi_nom ** 2, 0.0)
     for k in range(len(reg._nodes)):  # body scales: m r_g [kg m] and m r_g^2 [kg m^2]
         m = max(pi_nom[10 * k], 0.0)
@@ -62,13 +65,134 @@ def standard_for_base(reg, theta, pi_nom=None) -> np.ndarray:
         w[10 * k + 4:10 * k + 10] += (m * rg2) ** 2
     base = 10 * len(reg._nodes)
     w[base:] += np.where(w[base:] > 0, 0.0, 1e-6 * (w.max() if w.max() > 0 else 1.0))
-    w *= _allowed(reg)
+    return w * _allowed(reg)
+
+
+def _reach(reg, theta, pi, w) -> np.ndarray:
+    """pi + W K^T (K W K^T)^-1 (theta - K pi): the smallest weighted change with K pi = theta."""
+    K = np.asarray(reg.K, float)
     KW = K * w
-    d = np.linalg.lstsq(KW @ K.T, np.asarray(theta, float) - K @ pi_nom, rcond=None)[0]
-    pi = pi_nom + KW.T @ d
-    if not np.allclose(K @ pi, theta, rtol=1e-9, atol=1e-12 * max(np.abs(theta).max(), 1.0)):
+    d = np.linalg.lstsq(KW @ K.T, np.asarray(theta, float) - K @ pi, rcond=None)[0]
+    out = pi + KW.T @ d
+    if not np.allclose(K @ out, theta, rtol=1e-9, atol=1e-12 * max(np.abs(theta).max(), 1.0)):
         raise RobustDrakeError("these base parameters cannot be reached with the masses kept")
-    return pi
+    return out
+
+
+def standard_for_base(reg, theta, pi_nom=None) -> np.ndarray:
+    """pi with K pi = theta, nearest to pi_nom in relative terms (module docstring)."""
+    pi_nom = reg.standard_parameters() if pi_nom is None else np.asarray(pi_nom, float)
+    return _reach(reg, theta, pi_nom, _weights(reg, pi_nom))
+
+
+def _pseudo_inertia(x):
+    """Pseudo-inertia J = [[tr(I)/2 1 - I, h], [h^T, m]] of [m, h, Ixx, Iyy, Izz, Ixy, Ixz, Iyz]
+    (about the body origin; cvxpy expressions): J >= 0 iff a mass density realises the body
+    (Wensing, Kim & Slotine, IEEE RA-L 2018, eq. 8)."""
+    import cvxpy as cp
+
+    m, hx, hy, hz, ixx, iyy, izz, ixy, ixz, iyz = (x[i] for i in range(10))
+    t = 0.5 * (ixx + iyy + izz)
+    return cp.bmat([[t - ixx, -ixy, -ixz, hx], [-ixy, t - iyy, -iyz, hy], [-ixz, -iyz, t - izz, hz],
+                    [hx, hy, hz, m]])
+
+
+def _physical_variables(reg, pi_nom, margin):
+    """(W, x, pi(x), constraints): the free entries x of pi (W > 0) and the physical constraints
+    of :class:`PhysicalBySdp` (pseudo-inertia >= margin diag(m r_g^2 (x3), m), rotor inertia >= 0)."""
+    import cvxpy as cp
+
+    w = _weights(reg, pi_nom)
+    free = w > 0
+    x = cp.Variable(int(free.sum()))
+    pi = np.where(free, 0.0, pi_nom) + np.eye(len(w))[:, free] @ x
+    cons = []
+    for k in range(len(reg._nodes)):
+        m = pi_nom[10 * k]
+        if m > 0:
+            s = max(np.sum(pi_nom[10 * k + 4:10 * k + 7]) / 2.0, 1e-12)
+            J = _pseudo_inertia(pi[10 * k:10 * k + 10])
+            cons.append(0.5 * (J + J.T) >> margin * np.diag([s, s, s, m]))
+    base = 10 * len(reg._nodes)
+    cons += [pi[base + c] >= 0 for c, (_, kind, _) in enumerate(reg._extras) if kind == "Ia"]
+    return w, x, pi, cons
+
+
+class NearestPhysical:
+    """The physically valid plant (constraints of :class:`PhysicalBySdp`) whose base parameters
+    K pi lie in E(P, theta0) at Mahalanobis radius <= ``inside`` and are nearest (in P^-1) to a
+    drawn theta that no rigid body realises; ties in the null space of K are broken towards pi_nom
+    (weight 1e-6 in W). An SDP with a second-order cone, built once (theta a parameter). Calling it
+    returns pi or None."""
+
+    def __init__(self, reg, pi_nom, theta0, P, margin: float = 1e-4, inside: float = 0.999):
+        import cvxpy as cp
+
+        self.reg, self.pi_nom = reg, np.asarray(pi_nom, float)
+        w, self.x, pi, cons = _physical_variables(reg, self.pi_nom, margin)
+        lam, V = np.linalg.eigh(0.5 * (np.asarray(P, float) + np.asarray(P, float).T))
+        L = (V / np.sqrt(lam)).T  # ||L d||^2 = d^T P^-1 d
+        K = np.asarray(reg.K, float)
+        self.theta = cp.Parameter(K.shape[0])
+        cons.append(cp.norm(L @ (K @ pi) - L @ np.asarray(theta0, float)) <= inside)
+        free = w > 0
+        self.free = free
+        cost = (cp.sum_squares(L @ (K @ pi) - L @ self.theta)
+                + 1e-6 * cp.sum_squares(cp.multiply(1.0 / np.sqrt(w[free]), self.x - self.pi_nom[free])))
+        self.problem = cp.Problem(cp.Minimize(cost), cons)
+
+    def __call__(self, theta) -> np.ndarray | None:
+        import cvxpy as cp
+
+        self.theta.value = np.asarray(theta, float)
+        try:
+            self.problem.solve(solver="CLARABEL")
+        except cp.error.SolverError:
+            return None
+        if self.problem.status not in ("optimal", "optimal_inaccurate") or self.x.value is None:
+            return None
+        out = self.pi_nom.copy()
+        out[self.free] = self.x.value
+        return make_physical(self.reg, out)
+
+
+class PhysicalBySdp:
+    """pi with K pi = theta nearest to pi_nom in the weights W (masses and damping kept) with every
+    body's pseudo-inertia >= margin diag(m r_g^2 (x3), m) of the URDF body and every reflected
+    rotor inertia >= 0: a small SDP (Clarabel; built once, theta a parameter), then :func:`_reach`
+    for K pi = theta to rounding. For arms whose null space of K is not made of whole unseen
+    columns (a 3D arm: Ixx + Iyy of a link is seen only together with other links' entries), where
+    :func:`make_physical` cannot repair a body. Calling it returns None when infeasible (theta is
+    then no rigid-body arm with these masses)."""
+
+    def __init__(self, reg, pi_nom, margin: float = 1e-4):
+        import cvxpy as cp
+
+        self.reg, self.pi_nom = reg, np.asarray(pi_nom, float)
+        self.w, self.x, pi, cons = _physical_variables(reg, self.pi_nom, margin)
+        self.free = self.w > 0
+        self.theta = cp.Parameter(np.asarray(reg.K).shape[0])
+        cons.append(np.asarray(reg.K, float) @ pi == self.theta)
+        cost = cp.sum_squares(cp.multiply(1.0 / np.sqrt(self.w[self.free]), self.x - self.pi_nom[self.free]))
+        self.problem = cp.Problem(cp.Minimize(cost), cons)
+
+    def __call__(self, theta) -> np.ndarray | None:
+        import cvxpy as cp
+
+        self.theta.value = np.asarray(theta, float)
+        try:
+            self.problem.solve(solver="CLARABEL")
+        except cp.error.SolverError:
+            return None
+        if self.problem.status not in ("optimal", "optimal_inaccurate") or self.x.value is None:
+            return None
+        out = self.pi_nom.copy()
+        out[self.free] = self.x.value
+        try:
+            out = _reach(self.reg, theta, out, self.w)
+        except RobustDrakeError:
+            return None
+        return make_physical(self.reg, out)
 
 
 def _central_valid(Iv, m, h, tol=1e-12) -> bool:
@@ -171,33 +295,50 @@ def _z(rng, p, kind):
     return d if kind == "boundary" else d * rng.uniform() ** (1.0 / p)
 
 
-def draw_plants(reg, theta0, P, count: int, rng, boundary_share: float = 0.5, tries: int = 50):
+def _realise(reg, theta, pi_nom, sdp):
+    pi = make_physical(reg, standard_for_base(reg, theta, pi_nom))
+    return sdp(theta) if pi is None else pi
+
+
+def draw_plants(reg, theta0, P, count: int, rng, boundary_share: float = 0.5, tries: int = 20):
     """``count`` :class:`PlantDraw` across E(P, theta0): the first round(boundary_share count) on
-    its boundary, the rest inside; returns (draws, rejected)."""
+    its boundary, the rest inside; returns (draws, rejected).
+
+    A draw no rigid body with the URDF's masses realises is drawn again (counted in ``rejected``);
+    after ``tries`` such draws the last one is replaced by the nearest physically valid point of
+    the set (:class:`NearestPhysical`, ``PlantDraw.projected``; its radius is then below 1). Where
+    most of the set is no rigid body (a 3D arm's poorly excited link inertias) this keeps the draws
+    spread over the part of the set a real arm can be in."""
     from robust_drake.models import make_plant
+    from robust_drake.uncertainty.confidence import mahalanobis_radius
     from robust_drake.uncertainty.ellipsoid import Ellipsoid
 
-    E = Ellipsoid(np.asarray(theta0, float), np.asarray(P, float)).E
+    theta0, P = np.asarray(theta0, float), np.asarray(P, float)
+    E = Ellipsoid(theta0, P).E
     pi_nom = reg.standard_parameters()
     n_b = int(round(boundary_share * count))
-    out, rejected = [], 0
+    out, rejected, sdp, nearest = [], 0, PhysicalBySdp(reg, pi_nom), None
     plant = make_plant(reg.urdf)
     for i in range(count):
-        kind = "boundary" if i < n_b else "interior"
+        kind, projected = ("boundary" if i < n_b else "interior"), False
         for _ in range(tries):
-            z = _z(rng, len(theta0), kind)
-            theta = np.asarray(theta0, float) + E @ z
-            pi = make_physical(reg, standard_for_base(reg, theta, pi_nom))
+            theta = theta0 + E @ _z(rng, len(theta0), kind)
+            pi = _realise(reg, theta, pi_nom, sdp)
             if pi is not None:
                 break
             rejected += 1
         else:
-            raise RobustDrakeError(f"no physically valid plant in {tries} {kind} draws of the set")
+            nearest = nearest or NearestPhysical(reg, pi_nom, theta0, P)
+            pi, projected = nearest(theta), True
+            if pi is None:
+                raise RobustDrakeError(f"no physically valid plant near {tries} {kind} draws of the set")
+            theta = np.asarray(reg.K, float) @ pi
         setup = plant_setup(reg, pi)
         ctx = plant.CreateDefaultContext()
         setup(plant, ctx)
         th_drake = reg.base_parameters(plant, ctx)
         if not np.allclose(th_drake, theta, rtol=1e-8, atol=1e-10 * max(np.abs(theta).max(), 1.0)):
             raise RobustDrakeError("a drawn plant does not have the drawn base parameters (internal error)")
-        out.append(PlantDraw(theta=th_drake, radius=float(np.linalg.norm(z)), kind=kind, pi=pi, setup=setup))
+        out.append(PlantDraw(theta=th_drake, radius=mahalanobis_radius(theta0, P, th_drake), kind=kind, pi=pi,
+                             setup=setup, projected=projected))
     return out, rejected
