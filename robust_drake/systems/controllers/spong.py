@@ -114,19 +114,26 @@ def spong_law(regressor, robust_input, theta0, K, Lambda, q_d, qd_d, qdd_d, q, v
     return spong_torque(Y, theta0, u, K, r)
 
 
-def scalar_law_source(n: int, p: int, Lam, K, theta0, robust: str) -> str:
+def scalar_law_source(n: int, p: int, Lam, K, theta0, robust: str, packed: bool = False) -> str:
     """Python source of one SP1/SP2 sample for n joints and p parameters, straight-line (no loop,
     list or generator per sample): JS eq. 11 (q~, r, v, a), Y = regressor(q, q', v, a) (n x p nested
     lists), xi = Y^T r, the robust input u (``robust`` "sp1": eq. 18 with ``self.rho``,
     ``self.epsilon``; "sp2": componentwise; "call": ``self.robust_input(xi)``), eq. 12 tau = Y (theta_0
     + u) - K r.  Lambda, K, theta_0 are written as literals (repr round-trips floats); every sum
     starts from 0.0 and adds in index order, as :func:`spong_law`'s loops.  The function is
-    ``f(self, q_d, qd_d, qdd_d, q, v, v_error) -> list of n torques``."""
-    L = ["def _law(self, q_d, qd_d, qdd_d, q, v, ve):"]
+    ``f(self, q_d, qd_d, qdd_d, q, v, v_error) -> list of n torques``, or with ``packed``
+    ``f(self, x)`` on the one list x = [q_d, qd_d, qdd_d, q, v, v_error] (6n) that the fused input
+    port delivers (same operations in the same order, so the same floats)."""
+    if packed:
+        L = ["def _law(self, x):", f"    q = x[{3 * n}:{4 * n}]", f"    v = x[{4 * n}:{5 * n}]"]
+        q_d, qd_d, qdd_d, q, ve = (lambda j, o=o: f"x[{o * n + j}]" for o in (0, 1, 2, 3, 5))
+    else:
+        L = ["def _law(self, q_d, qd_d, qdd_d, q, v, ve):"]
+        q_d, qd_d, qdd_d, q, ve = (lambda j, s=s: f"{s}[{j}]" for s in ("q_d", "qd_d", "qdd_d", "q", "ve"))
     for j in range(n):
         lam = repr(float(Lam[j]))
-        L += [f"    qt{j} = q[{j}] - q_d[{j}]", f"    r{j} = ve[{j}] + {lam} * qt{j}",
-              f"    vr{j} = qd_d[{j}] - {lam} * qt{j}", f"    a{j} = qdd_d[{j}] - {lam} * ve[{j}]"]
+        L += [f"    qt{j} = {q(j)} - {q_d(j)}", f"    r{j} = {ve(j)} + {lam} * qt{j}",
+              f"    vr{j} = {qd_d(j)} - {lam} * qt{j}", f"    a{j} = {qdd_d(j)} - {lam} * {ve(j)}"]
     rs, vrs, as_ = (", ".join(f"{x}{j}" for j in range(n)) for x in ("r", "vr", "a"))
     L.append(f"    Y = self.regressor(q, v, [{vrs}], [{as_}])")
     L += [f"    Y{i} = Y[{i}]" for i in range(n)]
@@ -149,16 +156,17 @@ def scalar_law_source(n: int, p: int, Lam, K, theta0, robust: str) -> str:
     return "\n".join(L) + "\n"
 
 
-def compile_scalar_law(ctrl):
+def compile_scalar_law(ctrl, packed: bool = False):
     """:func:`scalar_law_source` for controller ``ctrl`` (its n, theta_0, K, Lambda; the robust
     input inlined for :class:`SpongSP1Controller` / :class:`SpongSP2Controller` unless a subclass
-    overrides ``robust_input``), compiled; tests/test_slotine_li.py checks it against :func:`spong_law`."""
+    overrides ``robust_input``), compiled; tests/test_slotine_li.py and tests/test_compiled_blocks.py
+    check both forms against :func:`spong_law`."""
     robust = "call"
     if type(ctrl).robust_input is SpongSP1Controller.robust_input:
         robust = "sp1"
     elif type(ctrl).robust_input is SpongSP2Controller.robust_input:
         robust = "sp2"
-    src = scalar_law_source(ctrl.n, len(ctrl._theta0), ctrl._Lam, ctrl._K, ctrl._theta0, robust)
+    src = scalar_law_source(ctrl.n, len(ctrl._theta0), ctrl._Lam, ctrl._K, ctrl._theta0, robust, packed)
     ns = {"_sqrt": math.sqrt, "_copysign": math.copysign}
     exec(compile(src, f"<{type(ctrl).__name__} law>", "exec"), ns)
     f = ns["_law"]
@@ -234,18 +242,21 @@ class _SpongController(DiscreteController):
         n = self.n
         if self._inputs_port is not None:  # one Eval of [x_d, q, v, v_error]
             x = self._inputs_port.Eval(context).tolist()
-            q, v = x[3 * n:4 * n], x[4 * n:5 * n]
-            u = self._scalar_law(x[:n], x[n:2 * n], x[2 * n:3 * n], q, v, x[5 * n:])
+            law = self.__dict__.get("_packed_law")
+            if law is None:
+                law = self._packed_law = compile_scalar_law(self, packed=True)
+            u = law(self, x)
             if self._feedforward:
-                qa, va = np.array(q), np.array(v)
+                qa, va = np.array(x[3 * n:4 * n]), np.array(x[4 * n:5 * n])
                 u = np.asarray(u, dtype=float) + sum(np.asarray(f(qa, va), dtype=float) for f in self._feedforward)
-        else:
-            x_d = self._x_d_port.Eval(context).tolist()
-            u = self._scalar_law(x_d[:n], x_d[n:2 * n], x_d[2 * n:], self._q_port.Eval(context).tolist(),
-                                 self._v_port.Eval(context).tolist(), self._v_error_port.Eval(context).tolist())
-            if self._feedforward:
-                u = self.with_feedforward(context, u)
-        discrete_state.get_mutable_vector(self._u_index).SetFromVector(u)
+            discrete_state.set_value(self._u_index, u)
+            return
+        x_d = self._x_d_port.Eval(context).tolist()
+        u = self._scalar_law(x_d[:n], x_d[n:2 * n], x_d[2 * n:], self._q_port.Eval(context).tolist(),
+                             self._v_port.Eval(context).tolist(), self._v_error_port.Eval(context).tolist())
+        if self._feedforward:
+            u = self.with_feedforward(context, u)
+        discrete_state.set_value(self._u_index, u)
 
 
 class FusedInputController(Diagram):
