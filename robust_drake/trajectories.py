@@ -194,10 +194,10 @@ def fit_in_limits(lo, hi, lower, upper, margin=LIMIT_MARGIN):
     with np.errstate(divide="ignore", invalid="ignore"):
         s = np.where(moved & both & (width > 0),
                      np.minimum(1.0, (1.0 - 2.0 * margin) * (upper - lower) / np.where(width > 0, width, 1.0)), 1.0)
-    mid = np.where(both, 0.5 * (lower + upper), 0.0)
-    offset = np.where(both, mid - s * 0.5 * (lo + hi),
-                      np.where(np.isfinite(lower), lower + margin * width - lo,
-                               np.where(np.isfinite(upper), upper - margin * width - hi, 0.0)))
+    lf, uf = np.where(np.isfinite(lower), lower, 0.0), np.where(np.isfinite(upper), upper, 0.0)
+    offset = np.where(both, 0.5 * (lf + uf) - s * 0.5 * (lo + hi),
+                      np.where(np.isfinite(lower), lf + margin * width - lo,
+                               np.where(np.isfinite(upper), uf - margin * width - hi, 0.0)))
     return np.where(moved, offset, 0.0), s, moved
 
 
