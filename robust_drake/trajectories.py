@@ -245,12 +245,14 @@ def _with_offset(f, off):
     return g
 
 
-def check_within_limits(reference, limits, duration: float, period: float, name: str | None = None) -> None:
+def check_within_limits(reference, limits, duration: float, period: float, name: str | None = None,
+                        hint: str | None = None) -> None:
     """RobustDrakeError (one line) if q_d of ``reference`` at the ticks k ``period``,
     0 <= k <= ceil(duration/period) + 1 (what a sampled loop reads), leaves a finite limit of
     ``limits`` (:class:`robust_drake.models.JointLimits`).  Names the first offending joint
     (0-based index and URDF name), its limits, the reference's range on it, and the trajectory
-    parameters that move it."""
+    parameters that move it (``hint`` replaces that advice).  ``reference(t)`` returns
+    (q (K, n), ...) for t of shape (K,)."""
     if limits is None or not limits.any_finite():
         return
     lower, upper = limits.arrays()
@@ -265,7 +267,7 @@ def check_within_limits(reference, limits, duration: float, period: float, name:
     keys = [p for p in ("offset", "amplitude", "amplitude_deg") if p in getattr(reference, "params", {})]
     hint = (f"set the trajectory parameters {' / '.join(keys)} (e.g. offset {0.5 * (lower[j] + upper[j]):.4g} "
             f"{u} on this joint, the middle of its range)" if "offset" in keys and np.isfinite(lower[j] + upper[j])
-            else "choose a reference inside the limits")
+            else "choose a reference inside the limits") if hint is None else hint
     more = f"; also joints {bad[1:].tolist()}" if bad.size > 1 else ""
     raise RobustDrakeError(
         f"reference {name or getattr(reference, 'name', 'reference')!r} leaves the position limits of joint {j} "

@@ -185,3 +185,18 @@ def test_sp1_beats_pd_on_the_panda_default_sine():
     assert np.all(e["sp1"].max(axis=0) < e["pd"].max(axis=0)) and e["sp1"].max() < 0.01, e["sp1"].max(axis=0)
     assert np.sqrt(np.mean(e["sp1"] ** 2)) < 0.2 * np.sqrt(np.mean(e["pd"] ** 2))  # measured 0.0024 vs 0.033 rad
     assert np.all(sp.q >= FRANKA_Q_MIN) and np.all(sp.q <= FRANKA_Q_MAX)
+
+
+def test_identification_excitation_outside_the_limits_is_refused():
+    """The Fourier excitation of ``simulate_experiment`` about q = 0 on the Panda leaves the
+    sign-limited joints: refused before simulating, naming the excitation's parameters (the
+    logs-to-control excitation swings about the middle of each range instead)."""
+    from robust_drake.experiments.logs_to_control import excitation_for
+    from robust_drake.model_repair.simulated import simulate_experiment
+
+    with pytest.raises(RobustDrakeError, match=r"excitation.*joint [35] \(joint[46]\).*'offset'"):
+        simulate_experiment("panda", duration=2.0, excitation=dict(amplitude=1.0, torque_limit=None),
+                            coulomb=0.1, viscous=0.01)
+    exc = excitation_for("panda")
+    assert np.all(np.asarray(exc["offset"]) - np.asarray(exc["amplitude"]) >= FRANKA_Q_MIN)
+    assert np.all(np.asarray(exc["offset"]) + np.asarray(exc["amplitude"]) <= FRANKA_Q_MAX)
