@@ -223,14 +223,28 @@ def _placed(arm, what, lo, hi, offset):
     off, s, moved = fit_in_limits(lo, hi, lower, upper)
     info = {"offset": off.tolist()}
     if moved.any():
-        info["limits"] = (f"joints {np.flatnonzero(moved).tolist()} (0-based) centred in their position limits"
+        idx = np.flatnonzero(moved)
+        info["limits"] = (f"joints {idx.tolist()} (0-based) centred in their position limits"
                           + ("" if np.all(s == 1.0) else f"; amplitude scaled by {np.round(s, 4).tolist()}"))
+        _log_once(logging.INFO, f"{what} reference: joint(s) {idx.tolist()} "
+                  f"({', '.join(limits.names[j] for j in idx)}) centred in their position limits, "
+                  f"offset {np.round(off[idx], 4).tolist()} rad")
         if np.any(s < 1.0):
             shrunk = np.flatnonzero(s < 1.0)
-            _log.warning("%s reference: amplitude of joint(s) %s (%s) scaled by %s to fit inside the joint limits",
-                         what, shrunk.tolist(), ", ".join(limits.names[j] for j in shrunk),
-                         np.round(s[shrunk], 4).tolist())
+            _log_once(logging.WARNING, f"{what} reference: amplitude of joint(s) {shrunk.tolist()} "
+                      f"({', '.join(limits.names[j] for j in shrunk)}) scaled by {np.round(s[shrunk], 4).tolist()} "
+                      "to fit inside the joint limits")
     return off, s, info
+
+
+_LOGGED: set = set()
+
+
+def _log_once(level: int, message: str) -> None:
+    """Log ``message`` the first time only (a reference is rebuilt by controllers and per run)."""
+    if message not in _LOGGED:
+        _LOGGED.add(message)
+        _log.log(level, message)
 
 
 def _with_offset(f, off):

@@ -76,9 +76,12 @@ def test_panda_default_sine_is_inside_the_limits_and_is_eq49_about_the_middle():
     assert "joints [3, 5]" in loop.reference.params["limits"]
 
 
-def test_too_wide_sine_is_shrunk_with_a_warning(caplog):
+def test_too_wide_sine_is_shrunk_with_a_warning(caplog, monkeypatch):
     """amplitude 2 rad: joint 0 (+-2.8973) keeps it; joint 1 (+-1.7628) is centred at 0 and
     shrunk to 0.9 x 1.7628; joint 3 (range 3.002) centred and shrunk to 0.9 x 1.501."""
+    import robust_drake.trajectories as T
+
+    monkeypatch.setattr(T, "_LOGGED", set())  # messages are logged once per process
     with caplog.at_level(logging.WARNING, logger="robust_drake.trajectories"):
         ref = make_reference(get_arm("panda"), "sine", amplitude=2.0)
     amp = np.asarray(ref.params["amplitude"])
@@ -132,6 +135,12 @@ def test_cli_out_of_range_reference(capsys):
     assert "joint 3 (joint4)" in err
     assert main(argv[:-1] + ["offset"]) == 2
     assert "KEY=VALUE" in capsys.readouterr().err
+    # the default: inside the limits, and the chosen offset is in the JSON
+    import json
+
+    assert main(argv[:-2] + ["--json"]) == 0
+    ref = json.loads(capsys.readouterr().out)["reference"]
+    np.testing.assert_allclose(ref["offset"], [0, 0, 0, -1.5708, 0, 1.8675, 0], atol=1e-12)
 
 
 # -------------------------------------------------- the papers' arms: references unchanged

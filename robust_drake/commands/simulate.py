@@ -103,6 +103,7 @@ def run(args) -> int:
     unc = getattr(loop.controller, "uncertainty", None)
     rho = getattr(loop.controller, "rho", None)
     out.update(uncertainty=unc, rho=rho if unc is not None else None)
+    out["reference"] = dict(loop.reference.params)  # with the offset the joint limits chose
     if plot:
         out["plots"] = [plot] + ([str(plots / "task_path.png")] if res.link_lengths else [])
     if args.json:
