@@ -5,7 +5,9 @@ Every arm of the project is a URDF file shipped as package data in ``robust_drak
 the repository's top-level ``models/`` is a symlink to that folder).  Override the folder with the
 environment variable ``ROBUST_DRAKE_MODELS``.  Conventions shared by all files:
 
-- joints ``joint1`` .. ``jointn`` (revolute, unlimited), one actuator ``motor<i>`` per joint;
+- joints ``joint1`` .. ``jointn`` (revolute), one actuator ``motor<i>`` per joint; position limits
+  where the arm has them (``<limit lower upper>``, read by :meth:`ArmSpec.position_limits`; the
+  papers' arms are unlimited);
 - link ``i`` has its origin on joint ``i`` and its x axis along the link;
 - a frame ``tool`` at the tip of the last link (forward kinematics:
   ``plant.GetFrameByName("tool")``);
