@@ -39,13 +39,13 @@ from robust_drake.description import describe
 from robust_drake.divergence import STATE_LIMIT, TRACKING_ERROR_LIMIT, is_diverged
 from robust_drake.errors import RobustDrakeError
 from robust_drake.metrics import error_criteria, torque_statistics
-from robust_drake.models import ArmSpec, ROBOTS, add_arm, get_arm, set_d2r2_theta
+from robust_drake.models import ArmSpec, JointLimits, ROBOTS, add_arm, get_arm, set_d2r2_theta
 from robust_drake.registry import BuildContext, block_label, is_block_spec, make_block
 from robust_drake.systems.forces import add_force_blocks, sum_into_plant
 from robust_drake.systems.friction import CompiledCoulombViscousFriction, FixedFrictionCompensation
 from robust_drake.systems.sensors import CompiledQuantizingEncoder, quantize
 from robust_drake.systems.sampled_reference import SampledReference
-from robust_drake.trajectories import make_reference
+from robust_drake.trajectories import check_within_limits, make_reference
 
 if TYPE_CHECKING:  # pragma: no cover
     import pandas as pd
@@ -435,6 +435,8 @@ class ClosedLoop:
         if self.reference.n != self.n:
             raise RobustDrakeError(f"trajectory {c.trajectory!r} has {self.reference.n} joints, robot has {self.n}")
         horizon = c.duration or self.reference.duration  # re-tabulated by simulate() for another duration
+        self.joint_limits = JointLimits.from_plant(self.plant)  # a continuous plant does not enforce them
+        check_within_limits(self.reference, self.joint_limits, horizon, self.period, c.trajectory)
         src = builder.AddSystem(self.reference_block(self.reference, self.period, horizon))
         self.reference_source = src
         src.set_name("reference")
@@ -605,6 +607,7 @@ class ClosedLoop:
             q0_meas = q0 if c.encoder_resolution is None else quantize(q0, c.encoder_resolution)
             self.observer.set_initial(obs_ctx, q0_meas, q_d0, qd_d0)
 
+        check_within_limits(self.reference, self.joint_limits, duration, self.period, c.trajectory)
         self.reference_source.tabulate(duration)
         simulator = Simulator(self.diagram, context)
         max_step = MAX_INTEGRATOR_STEP if self.flexibility is None else min(

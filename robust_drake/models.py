@@ -5,7 +5,9 @@ Every arm of the project is a URDF file shipped as package data in ``robust_drak
 the repository's top-level ``models/`` is a symlink to that folder).  Override the folder with the
 environment variable ``ROBUST_DRAKE_MODELS``.  Conventions shared by all files:
 
-- joints ``joint1`` .. ``jointn`` (revolute, unlimited), one actuator ``motor<i>`` per joint;
+- joints ``joint1`` .. ``jointn`` (revolute), one actuator ``motor<i>`` per joint; position limits
+  where the arm has them (``<limit lower upper>``, read by :meth:`ArmSpec.position_limits`; the
+  papers' arms are unlimited);
 - link ``i`` has its origin on joint ``i`` and its x axis along the link;
 - a frame ``tool`` at the tip of the last link (forward kinematics:
   ``plant.GetFrameByName("tool")``);
@@ -25,6 +27,7 @@ regressors") for the derivation of l1 = l2 = 0.30 m.
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import os
@@ -42,6 +45,7 @@ __all__ = [
     "MODELS_DIR",
     "ROBOTS",
     "ArmSpec",
+    "JointLimits",
     "get_arm",
     "packaged_models_dir",
     "models_dir",
@@ -60,12 +64,65 @@ __all__ = [
 
 
 @dataclass(frozen=True)
+class JointLimits:
+    """Position limits of an arm's joints, one entry per generalized position (plant order).
+
+    ``lower``/``upper`` [rad for revolute, m for prismatic joints] are ``-inf``/``+inf`` where the
+    URDF gives none (``continuous`` joints, or no ``<limit>``); ``names`` are the URDF joint names.
+    A continuous-time ``MultibodyPlant`` does not enforce them: they are checked on the reference
+    (:func:`robust_drake.trajectories.check_within_limits`).
+    """
+
+    lower: tuple
+    upper: tuple
+    names: tuple
+    units: tuple  # "rad" or "m" per position
+
+    @classmethod
+    def from_plant(cls, plant) -> "JointLimits":
+        """The finalized ``plant``'s ``GetPositionLowerLimits()/GetPositionUpperLimits()``, with
+        the name and unit of the joint owning each position."""
+        n = plant.num_positions()
+        names, units = [""] * n, ["rad"] * n
+        for ji in plant.GetJointIndices():
+            j = plant.get_joint(ji)
+            for k in range(j.num_positions()):
+                names[j.position_start() + k] = j.name()
+                units[j.position_start() + k] = "m" if j.type_name() == "prismatic" else "rad"
+        return cls(tuple(float(x) for x in plant.GetPositionLowerLimits()),
+                   tuple(float(x) for x in plant.GetPositionUpperLimits()), tuple(names), tuple(units))
+
+    @classmethod
+    def unlimited(cls, n: int) -> "JointLimits":
+        """No limit on any of ``n`` revolute joints (names ``joint1``..``jointn``)."""
+        return cls((-math.inf,) * n, (math.inf,) * n, tuple(f"joint{i + 1}" for i in range(n)), ("rad",) * n)
+
+    @property
+    def n(self) -> int:
+        return len(self.lower)
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        """(lower, upper) as float arrays of shape (n,)."""
+        return np.asarray(self.lower, float), np.asarray(self.upper, float)
+
+    def any_finite(self) -> bool:
+        return bool(np.isfinite(self.lower).any() or np.isfinite(self.upper).any())
+
+
+@functools.lru_cache(maxsize=32)
+def _urdf_limits(robot: str) -> JointLimits:
+    return JointLimits.from_plant(make_plant(robot))
+
+
+@dataclass(frozen=True)
 class ArmSpec:
     """A named arm: which URDF, how many joints, the geometry the papers use.
 
     ``loads`` maps a load name to a URDF file name (the default load is ``"none"``).
     ``torque_limits`` are the physical actuator limits in N m (informative; the URDFs do not
-    clamp, controllers that want saturation apply it themselves).
+    clamp, controllers that want saturation apply it themselves).  ``joint_limits`` are the joint
+    position limits; None (the default) reads them from the URDF through Drake on first use
+    (:meth:`position_limits`).
     """
 
     name: str
@@ -77,6 +134,20 @@ class ArmSpec:
     loads: dict = field(default_factory=dict)
     description: str = ""
     torque_limits: tuple | None = None
+    joint_limits: JointLimits | None = None
+
+    def position_limits(self) -> JointLimits:
+        """The joint position limits: ``joint_limits`` when given, else the URDF's as Drake reads
+        them (``plant.GetPositionLowerLimits()/GetPositionUpperLimits()``; +-inf for continuous
+        joints), cached per URDF.  An arm whose ``urdf`` is neither a named robot nor a
+        ``.urdf``/``.sdf`` path has no known limits (all infinite)."""
+        if self.joint_limits is not None:
+            return self.joint_limits
+        if self.name in ROBOTS:
+            return _urdf_limits(self.name)
+        if str(self.urdf) in ROBOTS or str(self.urdf).endswith((".urdf", ".sdf")):
+            return _urdf_limits(str(self.urdf))
+        return JointLimits.unlimited(self.n)
 
 
 _D2R2 = packaged_description("d2r2")  # the one source of the D2R2 numbers below

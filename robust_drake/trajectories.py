@@ -11,10 +11,20 @@ Units: s, rad, rad/s, rad/s^2, m.
 - :func:`sinusoid` -- JS eq. 49;
 - :func:`trapezoidal_line` -- a Cartesian straight line with a trapezoidal velocity
   profile (BR section V, figs. 1-2).
+
+Joint limits.  The joint-space references (``sine``, ``step``, ``cpt``, ``refmodel``) take an
+``offset`` [rad per joint] added to q_d.  Its default (None) is the rule of :func:`fit_in_limits`:
+a joint whose motion about q = 0 stays inside the arm's position limits
+(``ArmSpec.position_limits()``, read from the URDF) keeps offset 0 (the papers' references,
+unchanged); any other joint is centred in its range, and its amplitude shrunk (logged warning,
+recorded in ``Reference.params["limits"]``) only if the motion is wider than
+``1 - 2 LIMIT_MARGIN`` of the range.  An explicit ``offset`` is used as given.  The closed loop
+checks the reference it runs against the plant's limits (:func:`check_within_limits`).
 """
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass, field
 from typing import Callable
@@ -155,6 +165,130 @@ def trapezoidal_line(t, link_lengths, start, end, T, Ta, t0=0.0, elbow="up"):
     return task_space_to_joint(p, pd, pdd, link_lengths, elbow)
 
 
+# --------------------------------------------------------------------------- joint limits
+#: fraction of a joint's range left free at each end when a reference must be shrunk to fit
+LIMIT_MARGIN = 0.05
+
+_log = logging.getLogger("robust_drake.trajectories")
+
+
+def fit_in_limits(lo, hi, lower, upper, margin=LIMIT_MARGIN):
+    """Offset and amplitude scale per joint that put a motion inside the joint limits.
+
+    The motion without offset spans [lo_j, hi_j] (lo_j <= 0 <= hi_j for the references here,
+    e.g. [-a, a] for JS eq. 49's sine) and scales linearly with its amplitude, so
+    q = offset + s * (motion) spans offset + s [lo, hi].  Per joint:
+
+    - [lo, hi] inside [lower, upper] (or no finite limit): offset 0, s = 1 (unchanged);
+    - else, both limits finite: s = min(1, (1 - 2 margin)(upper - lower)/(hi - lo)) and the
+      motion centred, offset = (lower + upper)/2 - s (lo + hi)/2;
+    - one finite limit: s = 1, the motion shifted to ``margin (hi - lo)`` inside it.
+
+    Returns (offset (n,), s (n,), moved (n,) bool).  Units those of the limits (rad or m).
+    """
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    lower, upper = np.broadcast_to(np.asarray(lower, float), lo.shape), np.broadcast_to(np.asarray(upper, float), lo.shape)
+    moved = (lo < lower) | (hi > upper)
+    width = hi - lo
+    both = np.isfinite(lower) & np.isfinite(upper)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = np.where(moved & both & (width > 0),
+                     np.minimum(1.0, (1.0 - 2.0 * margin) * (upper - lower) / np.where(width > 0, width, 1.0)), 1.0)
+    lf, uf = np.where(np.isfinite(lower), lower, 0.0), np.where(np.isfinite(upper), upper, 0.0)
+    offset = np.where(both, 0.5 * (lf + uf) - s * 0.5 * (lo + hi),
+                      np.where(np.isfinite(lower), lf + margin * width - lo,
+                               np.where(np.isfinite(upper), uf - margin * width - hi, 0.0)))
+    return np.where(moved, offset, 0.0), s, moved
+
+
+def _arm_limits(arm):
+    """The arm's :class:`robust_drake.models.JointLimits`, or None (an arm-like object without)."""
+    get = getattr(arm, "position_limits", None)
+    return get() if get is not None else None
+
+
+def _placed(arm, what, lo, hi, offset):
+    """(offset (n,), amplitude scale (n,), params entries) for a reference spanning [lo, hi]
+    about q = 0: ``offset`` as given, or :func:`fit_in_limits` on the arm's limits (None)."""
+    n = len(lo)
+    if offset is not None:
+        off = _vec(offset, n)
+        if off.shape != (n,) or not np.all(np.isfinite(off)):
+            raise RobustDrakeError(f"{what} offset must be a finite number or {n} finite numbers (got {offset!r})")
+        return off, np.ones(n), {"offset": off.tolist()}
+    limits = _arm_limits(arm)
+    if limits is None or limits.n != n or not limits.any_finite():
+        return np.zeros(n), np.ones(n), {"offset": [0.0] * n}
+    lower, upper = limits.arrays()
+    off, s, moved = fit_in_limits(lo, hi, lower, upper)
+    info = {"offset": off.tolist()}
+    if moved.any():
+        idx = np.flatnonzero(moved)
+        info["limits"] = (f"joints {idx.tolist()} (0-based) centred in their position limits"
+                          + ("" if np.all(s == 1.0) else f"; amplitude scaled by {np.round(s, 4).tolist()}"))
+        _log_once(logging.INFO, f"{what} reference: joint(s) {idx.tolist()} "
+                  f"({', '.join(limits.names[j] for j in idx)}) centred in their position limits, "
+                  f"offset {np.round(off[idx], 4).tolist()} rad")
+        if np.any(s < 1.0):
+            shrunk = np.flatnonzero(s < 1.0)
+            _log_once(logging.WARNING, f"{what} reference: amplitude of joint(s) {shrunk.tolist()} "
+                      f"({', '.join(limits.names[j] for j in shrunk)}) scaled by {np.round(s[shrunk], 4).tolist()} "
+                      "to fit inside the joint limits")
+    return off, s, info
+
+
+_LOGGED: set = set()
+
+
+def _log_once(level: int, message: str) -> None:
+    """Log ``message`` the first time only (a reference is rebuilt by controllers and per run)."""
+    if message not in _LOGGED:
+        _LOGGED.add(message)
+        _log.log(level, message)
+
+
+def _with_offset(f, off):
+    """``f`` with ``off`` added to q_d; ``f`` itself when the offset is zero (same floats)."""
+    if not np.any(off):
+        return f
+
+    def g(t):
+        q, qd, qdd = f(t)
+        return q + off, qd, qdd
+
+    return g
+
+
+def check_within_limits(reference, limits, duration: float, period: float, name: str | None = None,
+                        hint: str | None = None) -> None:
+    """RobustDrakeError (one line) if q_d of ``reference`` at the ticks k ``period``,
+    0 <= k <= ceil(duration/period) + 1 (what a sampled loop reads), leaves a finite limit of
+    ``limits`` (:class:`robust_drake.models.JointLimits`).  Names the first offending joint
+    (0-based index and URDF name), its limits, the reference's range on it, and the trajectory
+    parameters that move it (``hint`` replaces that advice).  ``reference(t)`` returns
+    (q (K, n), ...) for t of shape (K,)."""
+    if limits is None or not limits.any_finite():
+        return
+    lower, upper = limits.arrays()
+    k = np.arange(int(math.ceil(duration / period)) + 2)
+    q = np.asarray(reference(k * period)[0], float).reshape(k.size, -1)
+    qmin, qmax = q.min(axis=0), q.max(axis=0)
+    bad = np.flatnonzero((qmin < lower) | (qmax > upper))
+    if bad.size == 0:
+        return
+    j = int(bad[0])
+    u = limits.units[j]
+    keys = [p for p in ("offset", "amplitude", "amplitude_deg") if p in getattr(reference, "params", {})]
+    hint = (f"set the trajectory parameters {' / '.join(keys)} (e.g. offset {0.5 * (lower[j] + upper[j]):.4g} "
+            f"{u} on this joint, the middle of its range)" if "offset" in keys and np.isfinite(lower[j] + upper[j])
+            else "choose a reference inside the limits") if hint is None else hint
+    more = f"; also joints {bad[1:].tolist()}" if bad.size > 1 else ""
+    raise RobustDrakeError(
+        f"reference {name or getattr(reference, 'name', 'reference')!r} leaves the position limits of joint {j} "
+        f"({limits.names[j]}): q_d spans [{qmin[j]:.4g}, {qmax[j]:.4g}] {u} over {duration:g} s, limits "
+        f"[{lower[j]:.4g}, {upper[j]:.4g}] {u}{more}; {hint}")
+
+
 # --------------------------------------------------------------------------- Reference
 @dataclass
 class Reference:
@@ -233,11 +367,14 @@ def _vec(x, n):
     return np.full(n, float(a)) if a.ndim == 0 else a
 
 
-def make_cpt(arm, amplitude_deg=90.0, segment=1.0):
-    """JS eq. 48 CPT: 0 -> ``amplitude_deg`` -> 0 on every joint, two ``segment``-s cubics."""
+def make_cpt(arm, amplitude_deg=90.0, segment=1.0, offset=None):
+    """JS eq. 48 CPT: 0 -> ``amplitude_deg`` -> 0 on every joint, two ``segment``-s cubics, plus
+    ``offset`` [rad] (default: the joint-limit rule of :func:`fit_in_limits`, module docstring)."""
     amp = np.deg2rad(_vec(amplitude_deg, arm.n))
-    return Reference(lambda t: cubic_cpt(t, amp, segment), arm.n, 2.0 * segment, "cpt",
-                     {"amplitude_deg": amplitude_deg, "segment": segment})
+    off, scale, info = _placed(arm, "cpt", np.minimum(amp, 0.0), np.maximum(amp, 0.0), offset)
+    amp = amp * scale
+    return Reference(_with_offset(lambda t: cubic_cpt(t, amp, segment), off), arm.n, 2.0 * segment, "cpt",
+                     {"amplitude_deg": amplitude_deg, "segment": segment, **info})
 
 
 def make_circle(arm, center=(0.4, 0.0), radius=0.1, omega=6.0, duration=7.0, elbow="up"):
@@ -252,31 +389,56 @@ def make_circle(arm, center=(0.4, 0.0), radius=0.1, omega=6.0, duration=7.0, elb
                      "circle", {"center": list(center), "radius": radius, "omega": omega})
 
 
-def make_refmodel(arm, amplitude_deg=90.0, omega=3.5, duration=3.0):
-    """JS eq. 47: critically damped second-order reference model driven by a 0 -> 90 deg step."""
+def make_refmodel(arm, amplitude_deg=90.0, omega=3.5, duration=3.0, offset=None):
+    """JS eq. 47: critically damped second-order reference model driven by a 0 -> 90 deg step,
+    plus ``offset`` [rad] (default: the joint-limit rule of :func:`fit_in_limits`)."""
     amp = np.deg2rad(_vec(amplitude_deg, arm.n))
-    return Reference(lambda t: second_order_step(t, amp, omega, 1.0), arm.n, duration, "refmodel",
-                     {"amplitude_deg": amplitude_deg, "omega": omega})
+    off, scale, info = _placed(arm, "refmodel", np.minimum(amp, 0.0), np.maximum(amp, 0.0), offset)
+    amp = amp * scale
+    return Reference(_with_offset(lambda t: second_order_step(t, amp, omega, 1.0), off), arm.n, duration,
+                     "refmodel", {"amplitude_deg": amplitude_deg, "omega": omega, **info})
 
 
-def make_step(arm, amplitude=0.5, omega=10.0, zeta=1.0, t0=0.0, duration=3.0, offset=0.0):
-    """A step of ``amplitude`` rad per joint smoothed by a second-order filter (CI section 5.2)."""
+def step_peak(zeta: float) -> float:
+    """Largest value over t >= 0 of the unit step response of omega^2/(s^2 + 2 zeta omega s +
+    omega^2): 1 for zeta >= 1, 1 + exp(-zeta pi / sqrt(1 - zeta^2)) (first overshoot) for
+    0 < zeta < 1.  Its smallest value is 0 (at t = 0)."""
+    z = float(zeta)
+    return 1.0 if z >= 1.0 else 1.0 + math.exp(-z * math.pi / math.sqrt(1.0 - z * z))
+
+
+def make_step(arm, amplitude=0.5, omega=10.0, zeta=1.0, t0=0.0, duration=3.0, offset=None):
+    """A step of ``amplitude`` rad per joint smoothed by a second-order filter (CI section 5.2),
+    from q_d = ``offset``.  Default offset (None): 0 on each joint whose motion (0 to amplitude
+    times :func:`step_peak`) is inside its position limits, else the rule of :func:`fit_in_limits`
+    (motion centred in the range, amplitude shrunk only if it must)."""
     amp = _vec(amplitude, arm.n)
-    off = _vec(offset, arm.n)
+    if not (float(omega) > 0 and float(zeta) > 0):
+        raise RobustDrakeError(f"second-order step needs omega > 0 and zeta > 0 (got {omega}, {zeta})")
+    peak = amp * step_peak(zeta)
+    off, scale, info = _placed(arm, "step", np.minimum(peak, 0.0), np.maximum(peak, 0.0), offset)
+    amp = amp * scale
 
     def f(t):
         q, qd, qdd = second_order_step(t, amp, omega, zeta, t0)
         return q + off, qd, qdd
 
     return Reference(f, arm.n, duration, "step",
-                     {"amplitude": amp.tolist(), "omega": omega, "zeta": zeta, "t0": t0})
+                     {"amplitude": amp.tolist(), "omega": omega, "zeta": zeta, "t0": t0, **info})
 
 
-def make_sine(arm, amplitude=0.5, omega=math.pi, duration=4.0):
-    """JS eq. 49: q_d = a sin(omega t) on every joint."""
+def make_sine(arm, amplitude=0.5, omega=math.pi, duration=4.0, offset=None):
+    """JS eq. 49 about an offset: q_d = offset + a sin(omega t) on every joint [rad, rad/s].
+
+    Default offset (None): 0 (JS eq. 49 as printed) on each joint where [-|a|, |a|] lies inside
+    its position limits; any other joint is centred in its range, offset = (lower + upper)/2, and
+    its amplitude shrunk to (1 - 2 LIMIT_MARGIN)(upper - lower)/2 only if it is wider
+    (:func:`fit_in_limits`; logged, and described in ``params["limits"]``)."""
     amp = _vec(amplitude, arm.n)
-    return Reference(lambda t: sinusoid(t, amp, omega), arm.n, duration, "sine",
-                     {"amplitude": amp.tolist(), "omega": omega})
+    off, scale, info = _placed(arm, "sine", -np.abs(amp), np.abs(amp), offset)
+    amp = amp * scale
+    return Reference(_with_offset(lambda t: sinusoid(t, amp, omega), off), arm.n, duration, "sine",
+                     {"amplitude": amp.tolist(), "omega": omega, **info})
 
 
 def make_line(arm, start=None, end=None, T=2.0, Ta=0.5, hold=0.5, elbow="up"):

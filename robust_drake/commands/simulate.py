@@ -16,6 +16,10 @@ def register(sub):
     p.add_argument("--load", default="none", help="load variant: none | max (default none)")
     p.add_argument("--controller", default="sp1", help="controller name (pd, sp1, sp2, ...; default sp1)")
     p.add_argument("--trajectory", default="cpt", help="cpt | circle | refmodel | sine | step | line (default cpt)")
+    p.add_argument("--trajectory-param", action="append", default=[], metavar="KEY=VALUE",
+                   help="a parameter of the trajectory factory, repeatable; VALUE is YAML, e.g. amplitude=0.3, "
+                        "offset=[0,0,0,-1.57,0,1.87,0] (sine/step/cpt/refmodel; default offset: q = 0 where "
+                        "inside the joint limits, else the middle of the range)")
     p.add_argument("--observer", default="averaging", help="velocity estimator (default averaging, JS eqs. 64/66)")
     p.add_argument("--rate", type=float, default=2500.0, help="controller/observer sample rate [Hz] (default 2500)")
     p.add_argument("--duration", type=float, default=None, help="simulated time [s] (default: the trajectory's)")
@@ -58,7 +62,9 @@ def run(args) -> int:
         flex = d2r2_flexibility(args.load, robot=args.robot)
     skip = args.skip if args.skip is not None else (1.0 if args.trajectory == "circle" else 0.0)
     cfg = ClosedLoopConfig(robot=args.robot, load=args.load, controller=args.controller,
-                           trajectory=args.trajectory, observer=args.observer, rate=args.rate,
+                           trajectory=args.trajectory, trajectory_params=_key_values(args.trajectory_param,
+                                                                                     "--trajectory-param"),
+                           observer=args.observer, rate=args.rate,
                            duration=args.duration, metrics_skip=skip,
                            friction_compensation=args.friction_compensation, flexibility=flex)
     loop = build_closed_loop(cfg)
@@ -97,6 +103,7 @@ def run(args) -> int:
     unc = getattr(loop.controller, "uncertainty", None)
     rho = getattr(loop.controller, "rho", None)
     out.update(uncertainty=unc, rho=rho if unc is not None else None)
+    out["reference"] = dict(loop.reference.params)  # with the offset the joint limits chose
     if plot:
         out["plots"] = [plot] + ([str(plots / "task_path.png")] if res.link_lengths else [])
     if args.json:
@@ -115,3 +122,19 @@ def run(args) -> int:
     if vis is not None and sys.stdin.isatty():
         input("Meshcat: replay the recording in the browser; press Enter to stop the server ")
     return 1 if res.diverged else 0
+
+
+def _key_values(items, option: str) -> dict:
+    """``["k=v", ...]`` -> {k: YAML value of v}; a one-line error for an item without ``=``."""
+    import yaml
+
+    out = {}
+    for item in items:
+        key, eq, text = item.partition("=")
+        if not eq or not key.strip():
+            raise RobustDrakeError(f"{option} takes KEY=VALUE (got {item!r})")
+        try:
+            out[key.strip()] = yaml.safe_load(text)
+        except yaml.YAMLError:
+            raise RobustDrakeError(f"{option} {key.strip()}: {text!r} is not a YAML value") from None
+    return out

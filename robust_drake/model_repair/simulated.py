@@ -32,9 +32,11 @@ from pydrake.systems.framework import DiagramBuilder, LeafSystem
 from pydrake.systems.primitives import VectorLogSink
 
 from robust_drake.errors import RobustDrakeError
+from robust_drake.models import JointLimits
 from robust_drake.model_repair.effects import (EFFECTS, Effect, add_effect_blocks, load_plant,
                                                   make_effect)
 from robust_drake.systems.friction import CoulombViscousFriction
+from robust_drake.trajectories import check_within_limits
 
 DEFAULT_ROBOT = "dfki_double_pendulum_c1"
 
@@ -217,6 +219,8 @@ def simulate_experiment(robot=DEFAULT_ROBOT, effects=(), duration=15.0, rate_hz=
     exp = build_experiment(robot, _as_effects(effects), exc, rng_ref, coulomb, viscous, rate_hz,
                            extra_blocks)
     diagram, plant, ref, period, n = exp.diagram, exp.plant, exp.reference, exp.period, exp.n
+    check_within_limits(ref, JointLimits.from_plant(plant), duration, period, "identification excitation",
+                        hint="set the excitation's 'offset' (e.g. the middle of each joint's range) and 'amplitude'")
     log_x, log_u = exp.log_x, exp.log_u
 
     sim = Simulator(diagram)
