@@ -116,3 +116,63 @@ def test_drake_and_cvxpy_agree_on_the_nearest_valid_point_of_the_set(robot):
         assert pi is not None
         r = K @ pi - th0
         assert np.sqrt(r @ np.linalg.solve(P, r)) <= 0.999 + 1e-5
+
+
+def _with_central_inertia(pi_nom, k, Ic_diag):
+    """pi_nom with body k's central inertia replaced by diag(Ic_diag) (centre of mass kept)."""
+    pi = pi_nom.copy()
+    m, c = pi[10 * k], pi[10 * k + 1:10 * k + 4] / pi[10 * k]
+    I = np.diag(Ic_diag) + m * (c @ c * np.eye(3) - np.outer(c, c))
+    pi[10 * k + 4:10 * k + 10] = [I[0, 0], I[1, 1], I[2, 2], I[0, 1], I[0, 2], I[1, 2]]
+    return pi
+
+
+def _puma_with_margin(reg):
+    """The URDF's PUMA with link 1 (a flat disc in the URDF: pseudo-inertia singular, no margin)
+    given central moments (0.18, 0.18, 0.35) kg m^2."""
+    return _with_central_inertia(reg.standard_parameters(), 0, [0.18, 0.18, 0.35])
+
+
+def test_the_certificate_refuses_bodies_no_mass_density_realises():
+    """The URDF's PUMA link 1 is a flat disc (Izz = Ixx + Iyy): no margin, refused. With link 1
+    thickened, PUMA link 2 with central principal moments (0.019, 0.01, 0.01) kg m^2 is a rigid body
+    (0.019 < 0.02): certified; (0.021, 0.01, 0.01) breaks the triangle inequality (no mass density
+    has it, although the matrix is positive definite): refused; so are a changed mass and a
+    negative reflected rotor inertia."""
+    reg = InverseDynamicsRegressor.from_robot("puma560_3link")
+    pi_nom = reg.standard_parameters()
+    assert not physical_certificate(reg, pi_nom, pi_nom, 1e-4)
+    base = _puma_with_margin(reg)
+    assert physical_certificate(reg, base, pi_nom, 1e-4)
+    assert physical_certificate(reg, _with_central_inertia(base, 1, [0.019, 0.01, 0.01]), pi_nom, 1e-4)
+    assert not physical_certificate(reg, _with_central_inertia(base, 1, [0.021, 0.01, 0.01]), pi_nom, 1e-4)
+    heavier = base.copy()
+    heavier[10] *= 1.01
+    assert not physical_certificate(reg, heavier, pi_nom, 1e-4)
+    ia = [10 * len(reg._nodes) + c for c, (_, kind, _) in enumerate(reg._extras) if kind == "Ia"]
+    assert ia
+    neg = base.copy()
+    neg[ia[0]] = -1e-9
+    assert not physical_certificate(reg, neg, pi_nom, 1e-4)
+
+
+def test_a_solver_point_outside_the_set_or_no_rigid_body_is_never_returned(monkeypatch):
+    """NearestPhysical returns only certified points: a rigidly moved PUMA (a valid arm) that the
+    solver would return is refused when it lies outside a tight set around the URDF's parameters,
+    kept when the set holds it; a point whose link 2 breaks the triangle inequality is refused."""
+    reg = InverseDynamicsRegressor.from_robot("puma560_3link")
+    pi_nom = reg.standard_parameters()
+    K = np.asarray(reg.K, float)
+    th0 = K @ pi_nom
+    moved = _moved_arm(_puma_with_margin(reg), len(reg._nodes), np.random.default_rng(4))
+    d = K @ moved - th0
+    for scale, kept in ((0.5, False), (2.0, True)):  # radius of the moved arm 2 and 0.5
+        n = np.count_nonzero(d)
+        P = np.diag(n * (scale * d) ** 2 + (1e-6 * np.abs(th0)) ** 2 + 1e-30)
+        assert np.isclose(np.sqrt(d @ np.linalg.solve(P, d)), 1.0 / scale, rtol=1e-3)
+        near = NearestPhysical(reg, pi_nom, th0, P)
+        monkeypatch.setattr(near, "solve", lambda theta: (moved, 0.0))
+        assert (near(th0) is not None) == kept
+    bad = _with_central_inertia(moved, 1, [0.021, 0.01, 0.01])
+    monkeypatch.setattr(near, "solve", lambda theta: (bad, 0.0))
+    assert near(th0) is None
