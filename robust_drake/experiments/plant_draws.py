@@ -25,7 +25,7 @@ Both SDPs are Drake ``MathematicalProgram`` s (4x4 LMIs per body, a Lorentz cone
 quadratic costs; Drake's Clarabel), built once per draw_plants call and updated per theta (the
 equality's bounds, the cost's linear term): median 3-9 ms a call on the PUMA and serial7 against
 7-10 ms for the same problems in cvxpy with theta a Parameter (30 calls each, interleaved, loaded
-2-core machine; /tmp bench of the mpdraw branch). Every solution is certified without the
+2-core machine, 2026-12-02). Every solution is certified without the
 solver before it is used (:func:`physical_certificate`, :func:`reaches`, the set's radius); a
 failed certificate counts as no plant (the caller draws again). tests/test_plant_draws_sdp.py
 cross-checks both programs against cvxpy.
