@@ -176,3 +176,17 @@ def test_a_solver_point_outside_the_set_or_no_rigid_body_is_never_returned(monke
     bad = _with_central_inertia(moved, 1, [0.021, 0.01, 0.01])
     monkeypatch.setattr(near, "solve", lambda theta: (bad, 0.0))
     assert near(th0) is None
+
+
+def test_draws_whose_projection_fails_its_certificate_are_not_used(monkeypatch):
+    """PUMA, a +-60 % set (most of it no rigid-body arm), two tries per draw: when every projection
+    fails (solver or certificate), draw_plants refuses with a one-line error instead of a plant."""
+    from robust_drake.errors import RobustDrakeError
+    from robust_drake.experiments import plant_draws
+
+    reg = InverseDynamicsRegressor.from_robot("puma560_3link")
+    th0 = reg.base_parameters()
+    P = np.diag((0.6 * np.abs(th0) + 1e-3) ** 2)
+    monkeypatch.setattr(plant_draws.NearestPhysical, "__call__", lambda self, theta: None)
+    with pytest.raises(RobustDrakeError, match="no physically valid plant"):
+        plant_draws.draw_plants(reg, th0, P, 3, np.random.default_rng(0), tries=2)

@@ -400,7 +400,8 @@ def draw_plants(reg, theta0, P, count: int, rng, boundary_share: float = 0.5, tr
 
     A draw no rigid body with the URDF's masses realises is drawn again (counted in ``rejected``);
     after ``tries`` such draws the last one is replaced by the nearest physically valid point of
-    the set (:class:`NearestPhysical`, ``PlantDraw.projected``; its radius is then below 1). Where
+    the set (:class:`NearestPhysical`, ``PlantDraw.projected``; its radius is then below 1; a
+    projection whose solve or certificate fails is counted and another draw projected). Where
     most of the set is no rigid body (a 3D arm's poorly excited link inertias) this keeps the draws
     spread over the part of the set a real arm can be in."""
     from robust_drake.models import make_plant
@@ -422,10 +423,15 @@ def draw_plants(reg, theta0, P, count: int, rng, boundary_share: float = 0.5, tr
                 break
             rejected += 1
         else:
-            nearest = nearest or NearestPhysical(reg, pi_nom, theta0, P)
-            pi, projected = nearest(theta), True
-            if pi is None:
-                raise RobustDrakeError(f"no physically valid plant near {tries} {kind} draws of the set")
+            nearest, projected = nearest or NearestPhysical(reg, pi_nom, theta0, P), True
+            for _ in range(tries):  # a failed solve or certificate: project another draw
+                pi = nearest(theta)
+                if pi is not None:
+                    break
+                rejected += 1
+                theta = theta0 + E @ _z(rng, len(theta0), kind)
+            else:
+                raise RobustDrakeError(f"no physically valid plant near {2 * tries} {kind} draws of the set")
             theta = np.asarray(reg.K, float) @ pi
         setup = plant_setup(reg, pi)
         ctx = plant.CreateDefaultContext()
