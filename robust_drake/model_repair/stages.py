@@ -175,7 +175,7 @@ def fit_friction_bounded(cache: ColumnCache, effects, weights, icache: ColumnCac
         if Z is None:
             sub = solve_ls(Y[:, :, keep], tau, nk, weights=weights, warn=not fixed)
         else:
-            sub = solve_iv(Y[:, :, keep], Z[:, :, keep], tau, nk, weights, nf)
+            sub = solve_iv(Y[:, :, keep], Z[:, :, keep], tau, nk, weights, nf, data=cache.data)
         neg = [keep[i] for i, nm in enumerate(nk) if _friction_level(nm) and sub.theta[i] < 0]
         if not neg:
             break
@@ -189,6 +189,7 @@ def fit_friction_bounded(cache: ColumnCache, effects, weights, icache: ColumnCac
         cov = np.zeros((p, p))
         cov[np.ix_(keep, keep)] = sub.cov
     res = dataclasses.replace(sub, theta=theta, se=se, cov=cov, names=list(names))
+    res.covariance = getattr(sub, "covariance", "homoscedastic")  # which covariance (uncertainty.confidence)
     res.residual = tau - predict_tau(cache, effects, theta)
     res.rms = np.sqrt(np.mean(res.residual**2, axis=0))
     return res, slices, free
@@ -272,7 +273,8 @@ def choose_estimator(inp: Inputs, base: Baseline, opts, log) -> Estimator:
     ls_k = base.fit
     iv_k, _ = IV.fit_model_iv(inp.cf, cz, [], w, nf)
     Yk, _, _ = inp.cf.model([])
-    test = IV.hausman(ls_k.theta, IV.ls_covariance(Yk, inp.cf.data.tau, ls_k.theta, w, nf), iv_k.theta, iv_k.cov)
+    test = IV.hausman(ls_k.theta, IV.ls_covariance(Yk, inp.cf.data.tau, ls_k.theta, w, nf), iv_k.theta,
+                     iv_k.cov_homoscedastic)  # both homoscedastic (N/N_eff): the classical test
     report = {
         "method": "instrumental_variables" if test["significant"] else "least_squares",
         "rule": "Hausman test significant at 1 % and, with consistent fit + replay on, the IV "
@@ -649,7 +651,9 @@ def identified_models(inp: Inputs, base: Baseline, est: Estimator, sel: Selectio
             base_covariance=None if cov is None else np.asarray(cov, float)[:p0, :p0],
             coulomb=np.asarray(fc, float), viscous=np.asarray(fv, float), effects=effs, estimator=method,
             data={**{k: summary[k] for k in ("samples", "joints", "dt", "sources", "filter")},
-                  "errors_in_variables": est.report.get("hausman")})  # read by uncertainty.confidence
+                  "errors_in_variables": est.report.get("hausman"),  # read by uncertainty.confidence
+                  "covariance": {"kind": getattr(fitres, "covariance", "homoscedastic"),
+                                 "parameters": int(len(fitres.theta))}})
 
     return (model(base.fit, [], [], "least_squares"), model(fin.fit, sel.chosen, fin.slices, est.method))
 

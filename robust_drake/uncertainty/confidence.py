@@ -101,7 +101,21 @@ def confidence_ellipsoid(model, alpha: float = 0.01) -> tuple[np.ndarray, np.nda
         S = S * n_eff_factor(model)
     if np.linalg.eigvalsh(S)[0] <= 0:
         raise RobustDrakeError("base covariance is not positive definite (unidentifiable parameters)")
-    return theta0, float(chi2.ppf(1.0 - alpha, p)) * S
+    return theta0, _quantile(model, alpha, p) * S
+
+
+def _quantile(model, alpha: float, p: int) -> float:
+    """chi2_{p, 1-alpha}; for a sandwich covariance (``data["covariance"]``, estimated from the
+    residual of N_eff x joints independent equations with k fitted parameters) p F_{p, nu}(1 - alpha),
+    nu = N_eff x joints - k."""
+    data = model.data or {}
+    cov = data.get("covariance") or {}
+    if "sandwich" not in str(cov.get("kind", "")) or not data.get("samples") or not data.get("joints"):
+        return float(chi2.ppf(1.0 - alpha, p))
+    nu = float(data["samples"]) * int(data["joints"]) / n_eff_factor(model) - int(cov.get("parameters", p))
+    if nu < 1:
+        raise RobustDrakeError(f"the fit has {nu:.3g} residual degrees of freedom: no confidence set")
+    return p * float(f_dist.ppf(1.0 - alpha, p, nu))
 
 
 def mahalanobis_radius(theta0, P, theta) -> float:
