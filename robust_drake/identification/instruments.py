@@ -27,7 +27,8 @@ zero-phase filter applied to an error that is independent between samples but wh
 correlation between joints) follows the motion, as noise in the regressor's does. It replaces
 sigma^2 (Z^T Y)^-1 Z^T Z (Y^T Z)^-1 x N / N_eff, which assumes one constant error level: with
 regressor noise that set under-covers (72.7 % at a nominal 90 % in tests/test_iv_covariance.py,
-87.0 % with the sandwich; IMI SCARA independent rows 77 % -> 89 %, tests/test_confidence_eiv.py).
+90.0 % with the sandwich; IMI SCARA independent rows 77 % -> 89 %, tests/test_confidence_eiv.py;
+the repair on the simulated C.1, truth = URDF, 71.4 % -> 85.7 %, benchmarks/iv_coverage.py).
 A Bartlett (Newey-West) long-run covariance of the row scores was measured worse on the repair's
 5 s logs (40 % at 90 % on the simulated C.1 with windows of N / N_eff rows, 10-20 % with longer
 windows): its kernel down-weights the correlation inside the filter's span, and longer windows

@@ -32,15 +32,13 @@ tests/test_confidence_eiv.py). Which set at which size:
   "final"``, whose estimator is ``instrumental_variables``; the repair's low-passed instruments
   are uncorrelated with the regressor noise above ratio x f_c only, see
   ``identification.instruments``). Its set, measured against the URDF's parameters on simulated
-  5 s logs where the repair chose IV (``benchmarks/iv_coverage.py``, same fits, homoscedastic
-  covariance before -> sandwich now, at 90 % / 99 %): Siciliano arm 95.9 / 100 -> 89.8 / 98.0 %
-  (49 fits), C.1 71.4 / 85.7 -> 66.7 / 92.9 % (42 of 150 seeds), both with a 10-bit encoder
-  >= 97 / 99 % (71-73 fits). The C.1 shortfall is bias, not spread: over the same fits the
-  error in two base parameters has a mean of 0.6-0.7 standard errors (3 sigma from 0; still
-  there without Coulomb friction in the simulated arm, 76.8 / 93.8 %), which no covariance
-  covers; on filtered synthetic rows with heteroscedastic regressor noise and an unbiased IV
-  the sandwich's sets hold the truth in 87.0 / 99.0 % (homoscedastic 72.7 / 89 %,
-  tests/test_iv_covariance.py);
+  5 s logs where the repair chose IV (``benchmarks/iv_coverage.py``, the same fits with the
+  homoscedastic covariance the model carried before -> the sandwich it carries now, at 90 % /
+  99 %): C.1 71.4 / 85.7 -> 85.7 / 97.6 % (42 of 150 seeds), Siciliano arm 95.9 / 100 ->
+  98.0 / 100 % (49 of 60); with a 10-bit encoder (more noise in the regressor) C.1 97.2 / 98.6
+  -> 98.6 / 100 % (71 of 80), Siciliano 100 / 100 % both (73 of 80). On filtered synthetic rows
+  with a noise level that follows the motion and an unbiased IV: 72.7 / 89 -> 90.0 / 99.7 %
+  (300 draws, tests/test_iv_covariance.py);
 - the level of the acceleration noise is known (CI's setting: bounds delta_qdd; uniform noise has
   variance delta^2 / 3), any size N >= 50 rows: :func:`corrected_least_squares` +
   :func:`eiv_confidence_ellipsoid`, the bias-compensated estimate with an HC3 sandwich covariance
