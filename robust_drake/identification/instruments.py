@@ -56,14 +56,16 @@ LEVEL_WINDOW = 2.0
 
 
 def solve_iv(Y: np.ndarray, Z: np.ndarray, tau: np.ndarray, names: list[str], weights=None,
-             n_eff_factor: float = 1.0, data=None) -> LSResult:
+             n_eff_factor: float = 1.0, data=None, robust: bool = True) -> LSResult:
     """Instrumental-variable estimate ``(Z^T W Y)^-1 Z^T W tau`` (rows of joint j weighted w_j).
 
     ``Y``, ``Z``: (N, n, p) regressor and instruments on the same rows. ``cov``: the sandwich of
     :func:`iv_sandwich` (``data``: the :class:`~robust_drake.identification.data.IdentData` whose
     zero-phase filter made the rows; None = independent rows); ``cov_homoscedastic``: sigma^2
     (Z^T Y)^-1 Z^T Z (Y^T Z)^-1 inflated by 1 / ``n_eff_factor`` (N_eff / N of filtered data), what
-    the Hausman test uses. The residual is the equation error ``tau - Y theta``."""
+    the Hausman test uses (``robust`` False: ``cov`` is that one too, for callers that need theta
+    or the Hausman pair only: the sandwich costs about 4x the solve). The residual is the equation
+    error ``tau - Y theta``."""
     Y, Z, tau = (np.asarray(a, float) for a in (Y, Z, tau))
     if Y.shape != Z.shape:
         raise ValueError(f"regressor {Y.shape} and instruments {Z.shape} differ")
@@ -72,10 +74,13 @@ def solve_iv(Y: np.ndarray, Z: np.ndarray, tau: np.ndarray, names: list[str], we
     Yw = (Y * w[None, :, None]).reshape(-1, p)
     Zw = (Z * w[None, :, None]).reshape(-1, p)
     bw = (tau * w[None, :]).reshape(-1)
-    # HC3 leverages h_k = tr(Y_k A^-1 Z_k^T W) of the rows
-    lev = np.einsum("kjp,kjp->k", Y @ np.linalg.pinv(Zw.T @ Yw), Z * (w**2)[None, :, None])
-    return solve_iv_normal(Yw.T @ Yw, Zw.T @ Yw, Zw.T @ Zw, Zw.T @ bw, lambda theta: tau - Y @ theta,
-                           names, w, N, n_eff_factor, sandwich=([Z], data, lev))
+    ZY = Zw.T @ Yw
+    sandwich = None
+    if robust:  # with the HC3 leverages h_k = tr(Y_k A^-1 Z_k^T W) of the rows
+        YA = (Y.reshape(-1, p) @ np.linalg.pinv(ZY)).reshape(Y.shape)  # one 2-D product (a 3-D one is 5x slower)
+        sandwich = ([Z], data, np.einsum("kjp,kjp->k", YA, Z * (w**2)[None, :, None]))
+    return solve_iv_normal(Yw.T @ Yw, ZY, Zw.T @ Zw, Zw.T @ bw, lambda theta: tau - Y @ theta,
+                           names, w, N, n_eff_factor, sandwich=sandwich)
 
 
 def solve_iv_normal(YY, ZY, ZZ, Zb, residual_of, names: list[str], w: np.ndarray, N: int,
@@ -209,7 +214,8 @@ def fit_iv_blocks(cache: ColumnCache, icache: ColumnCache, effects, weights, par
         spans = np.cumsum([0] + [b.shape[2] for b in Yb_])
         A = sum(ZY)
         Ai = np.linalg.pinv(A)
-        U = sum(Y @ Ai[spans[a]:spans[a + 1]] for a, Y in enumerate(Yb_))  # Y A^-1, (N, n, p)
+        U = sum((Y.reshape(-1, Y.shape[2]) @ Ai[spans[a]:spans[a + 1]]).reshape(Y.shape[:2] + (-1,))
+                for a, Y in enumerate(Yb_))  # Y A^-1, (N, n, p)
         w2 = (w**2)[None, :, None]
         lev = sum(np.einsum("kjp,kjp->k", U[:, :, spans[b]:spans[b + 1]], Z * w2) for b, Z in enumerate(Zb_))
         sandwich = (Zb_, cache.data, lev)
@@ -243,14 +249,15 @@ def hausman(theta_ls, cov_ls, theta_iv, cov_iv, alpha: float = ALPHA) -> dict:
     return {"statistic": H, "dof": dof, "limit": limit, "alpha": alpha, "significant": bool(H > limit)}
 
 
-def fit_model_iv(cache, icache, effects, weights, n_eff_factor: float = 1.0):
+def fit_model_iv(cache, icache, effects, weights, n_eff_factor: float = 1.0, robust: bool = True):
     """IV counterpart of ``selection.fit_model``: columns from ``cache``, instruments from
-    ``icache`` (same rows, lower cut-off). ``residual``/``rms`` are output errors."""
+    ``icache`` (same rows, lower cut-off). ``residual``/``rms`` are output errors; ``robust``:
+    as :func:`solve_iv`."""
     Y, names, slices = cache.model(effects)
     Z, _, _ = icache.model(effects)
     if Y.shape != Z.shape:
         raise ValueError(f"instrument rows {Z.shape} do not match the data {Y.shape}")
-    res = solve_iv(Y, Z, cache.data.tau, names, weights, n_eff_factor, data=cache.data)
+    res = solve_iv(Y, Z, cache.data.tau, names, weights, n_eff_factor, data=cache.data, robust=robust)
     res.residual = cache.data.tau - predict_tau(cache, effects, res.theta)
     res.rms = cache.rms(res.residual)  # over the rows in use (stiction rows left out)
     return res, slices
@@ -285,7 +292,8 @@ def cutoff_sweep(paths, robot, regressor, cutoffs, torque: str = "tau_meas", wei
             c, cz = ColumnCache(d, regressor, exclude=ex), ColumnCache(z, regressor, exclude=ex)
         w = np.ones(c.data.n) if weights is None else np.asarray(weights, float)
         out["least_squares"].append([float(x) for x in fit_model(c, [], w)[0].theta[:p0]])
-        out["instrumental_variables"].append([float(x) for x in fit_model_iv(c, cz, [], w)[0].theta[:p0]])
+        iv = fit_model_iv(c, cz, [], w, robust=False)[0]  # theta only
+        out["instrumental_variables"].append([float(x) for x in iv.theta[:p0]])
         del c, cz  # before the next cut-off's columns are built
     return out
 
@@ -316,5 +324,6 @@ def plot_cutoff_sweep(sweep: dict, path: str, top: int = 4) -> str:
     return path
 
 
-__all__ = ["solve_iv", "solve_iv_normal", "fit_iv_blocks", "iv_sandwich", "noise_gain", "local_mean", "hausman", "ls_covariance", "fit_model_iv", "cutoff_sweep", "plot_cutoff_sweep",
+__all__ = ["solve_iv", "solve_iv_normal", "fit_iv_blocks", "iv_sandwich", "noise_gain", "local_mean", "hausman",
+           "ls_covariance", "fit_model_iv", "cutoff_sweep", "plot_cutoff_sweep",
            "INSTRUMENT_RATIO"]

@@ -271,7 +271,7 @@ def choose_estimator(inp: Inputs, base: Baseline, opts, log) -> Estimator:
     nf = n_effective(fit) / fit.N
     w = base.weights
     ls_k = base.fit
-    iv_k, _ = IV.fit_model_iv(inp.cf, cz, [], w, nf)
+    iv_k, _ = IV.fit_model_iv(inp.cf, cz, [], w, nf, robust=False)  # the Hausman pair is homoscedastic
     Yk, _, _ = inp.cf.model([])
     test = IV.hausman(ls_k.theta, IV.ls_covariance(Yk, inp.cf.data.tau, ls_k.theta, w, nf), iv_k.theta,
                      iv_k.cov_homoscedastic)  # both homoscedastic (N/N_eff): the classical test
