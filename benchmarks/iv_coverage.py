@@ -70,7 +70,7 @@ def main(argv=None) -> dict:
             hits["sandwich", lev] += mahalanobis_radius(*confidence_ellipsoid(m, 1 - lev), truth) <= 1.0
             hits["homoscedastic", lev] += d @ np.linalg.solve(S0, d) <= chi2.ppf(lev, p)
     out = {"robot": a.robot, "bits": a.bits, "seeds": a.seeds, "iv_chosen": n_iv,
-           "coverage": {f"{k} {lev:g}": v / max(n_iv, 1) for (k, lev), v in hits.items()}}
+           "coverage": {f"{k} {lev:g}": round(float(v) / max(n_iv, 1), 3) for (k, lev), v in hits.items()}}
     print(out)
     return out
 
