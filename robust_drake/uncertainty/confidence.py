@@ -192,10 +192,12 @@ def instrumental_variables(Y, Z, tau, names=None) -> CorrectedFit:
     Y, Z (N, n, p): measured regressor and instruments (uncorrelated with the regressor and torque
     noise, correlated with the noise-free regressor: e.g. the regressor of the excitation's
     *reference* motion), tau (N, n). No noise level is needed. Rows must be independent. Unlike
-    ``identification.instruments.solve_iv``'s sigma^2 (Z^T Y)^-1 Z^T Z (Y^T Z)^-1, the sandwich
-    does not assume an equation error of constant variance, which noise in Y (error Delta Y_k
-    theta) breaks: IMI SCARA, CI's noise, 90 % sets, reference instruments: 91.7 % / 90 % coverage
-    at 100 / 300 rows with the sandwich, 72 % / 78 % with solve_iv's covariance (300 draws each)."""
+    the homoscedastic sigma^2 (Z^T Y)^-1 Z^T Z (Y^T Z)^-1 (``instruments.solve_iv``'s
+    ``cov_homoscedastic``), the sandwich does not assume an equation error of constant variance,
+    which noise in Y (error Delta Y_k theta) breaks: IMI SCARA, CI's noise, 90 % sets, reference
+    instruments: 91.7 % / 90 % coverage at 100 / 300 rows with the sandwich, 72 % / 78 % with the
+    homoscedastic covariance (300 draws each). For filtered, correlated rows (the repair's):
+    ``instruments.iv_sandwich``."""
     Y, Z, tau = (np.asarray(a, float) for a in (Y, Z, tau))
     if Y.shape != Z.shape or Y.shape[0] <= Y.shape[2]:
         raise RobustDrakeError(f"instrumental variables need Y and Z of the same shape with N > p rows "
