@@ -175,10 +175,15 @@ def test_iv_fit_from_blocks_equals_solve_iv_on_the_joined_model(reg):
     cache, icache = ColumnCache(data, reg), ColumnCache(zdata, reg)
     effects = [_candidates()[2], _candidates()[4]]
     w = np.array([25.0, 9.0])
-    ref = solve_iv(cache.model(effects)[0], icache.model(effects)[0], data.tau, cache.names(effects), w, 0.3)
+    ref = solve_iv(cache.model(effects)[0], icache.model(effects)[0], data.tau, cache.names(effects), w, 0.3,
+                   data=cache.data)
     fast = fit_iv_blocks(cache, icache, effects, w, parts=_test_masks(data, 4), n_eff_factor=0.3)
-    for attr in ("theta", "se", "residual", "rms", "cov"):
+    for attr in ("theta", "residual", "rms", "cov_homoscedastic"):
         assert _close(getattr(fast, attr), getattr(ref, attr)), attr
+    assert _close(fast.cov, ref.cov_homoscedastic)  # the selection's fits: homoscedastic
+    robust = fit_iv_blocks(cache, icache, effects, w, parts=_test_masks(data, 4), n_eff_factor=0.3, robust=True)
+    assert robust.covariance == ref.covariance == "filter-aware sandwich"
+    assert _close(robust.cov, ref.cov) and _close(robust.se, ref.se)  # the sandwich from the blocks
     # the plain IV solve itself: (Z^T W Y)^-1 Z^T W tau on the stacked rows
     Y, Z = cache.model(effects)[0], icache.model(effects)[0]
     A, B = ((M * w[None, :, None]).reshape(-1, Y.shape[2]) for M in (Y, Z))

@@ -43,7 +43,7 @@ def test_iv_removes_the_attenuation_of_least_squares():
     assert iv.theta == pytest.approx(theta, rel=0.03)
     assert np.all(np.abs(iv.theta - theta) < np.abs(th_ls - theta))
     cov_ls = ls_covariance(Y, tau, th_ls, np.ones(1), 2 * 8.0 * DT)
-    assert hausman(th_ls, cov_ls, iv.theta, iv.cov)["significant"]
+    assert hausman(th_ls, cov_ls, iv.theta, iv.cov_homoscedastic)["significant"]
 
 
 def test_hausman_does_not_fire_on_a_clean_regressor():
@@ -52,7 +52,7 @@ def test_hausman_does_not_fire_on_a_clean_regressor():
     th_ls = np.linalg.lstsq(A, tau.reshape(-1), rcond=None)[0]
     iv = solve_iv(Y, Z, tau, ["a", "b"], n_eff_factor=2 * 8.0 * DT)
     cov_ls = ls_covariance(Y, tau, th_ls, np.ones(1), 2 * 8.0 * DT)
-    h = hausman(th_ls, cov_ls, iv.theta, iv.cov)
+    h = hausman(th_ls, cov_ls, iv.theta, iv.cov_homoscedastic)
     assert not h["significant"], h
     assert th_ls == pytest.approx(theta, rel=1e-2) and iv.theta == pytest.approx(theta, rel=1e-2)
 

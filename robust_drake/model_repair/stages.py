@@ -152,13 +152,14 @@ def _friction_level(name: str) -> bool:
 
 
 def fit_friction_bounded(cache: ColumnCache, effects, weights, icache: ColumnCache | None = None,
-                         nf: float = 1.0) -> tuple[LSResult, list[slice], dict]:
+                         nf: float = 1.0, robust: bool = False) -> tuple[LSResult, list[slice], dict]:
     """LS (or, with instrument columns ``icache``, IV) fit of baseline + ``effects`` with every
     Coulomb / viscous level >= 0: levels the free fit puts below 0 are fixed at 0 and the other
     parameters refitted with the same estimator, repeated until none is negative (an active-set
     bounded fit that keeps the estimator's rank handling and covariance). Returns (fit, slices,
     {name of a level fixed at 0: its value in the fit before it was fixed}); the fixed levels get
-    standard error 0."""
+    standard error 0. ``robust``: the IV fit's covariance is the sandwich of
+    ``instruments.iv_sandwich`` (computed once, on the last active set), else homoscedastic."""
     import dataclasses
 
     from robust_drake.identification.instruments import solve_iv
@@ -175,9 +176,11 @@ def fit_friction_bounded(cache: ColumnCache, effects, weights, icache: ColumnCac
         if Z is None:
             sub = solve_ls(Y[:, :, keep], tau, nk, weights=weights, warn=not fixed)
         else:
-            sub = solve_iv(Y[:, :, keep], Z[:, :, keep], tau, nk, weights, nf)
+            sub = solve_iv(Y[:, :, keep], Z[:, :, keep], tau, nk, weights, nf, data=cache.data, robust=False)
         neg = [keep[i] for i, nm in enumerate(nk) if _friction_level(nm) and sub.theta[i] < 0]
         if not neg:
+            if Z is not None and robust:
+                sub = solve_iv(Y[:, :, keep], Z[:, :, keep], tau, nk, weights, nf, data=cache.data)
             break
         free.update({names[k]: float(sub.theta[keep.index(k)]) for k in neg})
         fixed += neg
@@ -189,6 +192,7 @@ def fit_friction_bounded(cache: ColumnCache, effects, weights, icache: ColumnCac
         cov = np.zeros((p, p))
         cov[np.ix_(keep, keep)] = sub.cov
     res = dataclasses.replace(sub, theta=theta, se=se, cov=cov, names=list(names))
+    res.covariance = getattr(sub, "covariance", "homoscedastic")  # which covariance (uncertainty.confidence)
     res.residual = tau - predict_tau(cache, effects, theta)
     res.rms = np.sqrt(np.mean(res.residual**2, axis=0))
     return res, slices, free
@@ -241,10 +245,12 @@ class Estimator:
         """Instrument columns when this estimator is IV (and the cache exists), else None."""
         return self.icache if self.iv and self.icache is not None else None
 
-    def fit(self, cache: ColumnCache, effects, weights) -> tuple[LSResult, list[slice]]:
+    def fit(self, cache: ColumnCache, effects, weights, covariance: bool = False) -> tuple[LSResult, list[slice]]:
         """Fit with friction levels >= 0 (:func:`fit_friction_bounded`); the levels fixed at 0
-        are in ``self.clamped`` after the call."""
-        fit, slices, self.clamped = fit_friction_bounded(cache, effects, weights, self.instruments(), self.nf)
+        are in ``self.clamped`` after the call. ``covariance``: the fit's ``cov``/``se`` are read
+        (IV: the sandwich, about 4x the solve; else homoscedastic)."""
+        fit, slices, self.clamped = fit_friction_bounded(cache, effects, weights, self.instruments(), self.nf,
+                                                         robust=covariance)
         return fit, slices
 
     def as_least_squares(self) -> "Estimator":
@@ -270,9 +276,10 @@ def choose_estimator(inp: Inputs, base: Baseline, opts, log) -> Estimator:
     nf = n_effective(fit) / fit.N
     w = base.weights
     ls_k = base.fit
-    iv_k, _ = IV.fit_model_iv(inp.cf, cz, [], w, nf)
+    iv_k, _ = IV.fit_model_iv(inp.cf, cz, [], w, nf, robust=False)  # the Hausman pair is homoscedastic
     Yk, _, _ = inp.cf.model([])
-    test = IV.hausman(ls_k.theta, IV.ls_covariance(Yk, inp.cf.data.tau, ls_k.theta, w, nf), iv_k.theta, iv_k.cov)
+    test = IV.hausman(ls_k.theta, IV.ls_covariance(Yk, inp.cf.data.tau, ls_k.theta, w, nf), iv_k.theta,
+                     iv_k.cov_homoscedastic)  # both homoscedastic (N/N_eff): the classical test
     report = {
         "method": "instrumental_variables" if test["significant"] else "least_squares",
         "rule": "Hausman test significant at 1 % and, with consistent fit + replay on, the IV "
@@ -362,7 +369,7 @@ def resolve_torque_scale(inp: Inputs, base: Baseline, est: Estimator, sel: Selec
     for k, e in enumerate(sel.chosen):
         if e.kind != "torque_scale" or e.joint is None:
             continue
-        fk, sl = est.fit(inp.cf, sel.chosen, sel.weights)
+        fk, sl = est.fit(inp.cf, sel.chosen, sel.weights, covariance=True)
         res = resolve(fk.theta[:p0], fk.se[:p0], inp.regressor.base_parameters(), e.joint,
                       float(e.parameters(fk.theta[sl[k]])["gain_error"]), inp.fit.n)
         if res["swapped"]:
@@ -449,7 +456,7 @@ class Final:
 def final_model(inp: Inputs, est: Estimator, sel: Selection, opts) -> Final:
     """Final fit and per-effect cumulative validation of the kept effects."""
     chosen, w = sel.chosen, sel.weights
-    final_fit, slices = est.fit(inp.cf, chosen, w)
+    final_fit, slices = est.fit(inp.cf, chosen, w, covariance=True)  # the model's covariance
     rows = []
     for k, e in enumerate(chosen):
         fk, _ = est.fit(inp.cf, chosen[:k + 1], w)
@@ -649,7 +656,9 @@ def identified_models(inp: Inputs, base: Baseline, est: Estimator, sel: Selectio
             base_covariance=None if cov is None else np.asarray(cov, float)[:p0, :p0],
             coulomb=np.asarray(fc, float), viscous=np.asarray(fv, float), effects=effs, estimator=method,
             data={**{k: summary[k] for k in ("samples", "joints", "dt", "sources", "filter")},
-                  "errors_in_variables": est.report.get("hausman")})  # read by uncertainty.confidence
+                  "errors_in_variables": est.report.get("hausman"),  # read by uncertainty.confidence
+                  "covariance": {"kind": getattr(fitres, "covariance", "homoscedastic"),
+                                 "parameters": int(len(fitres.theta))}})
 
     return (model(base.fit, [], [], "least_squares"), model(fin.fit, sel.chosen, fin.slices, est.method))
 
