@@ -193,15 +193,17 @@ def test_sampled_layer_is_100x_smaller_without_chattering():
 
 
 @pytest.mark.slow
-def test_seven_joint_arm_from_an_8_s_log():
-    """serial7 (48 base parameters, M changed by five joints: the reference tube is used): an 8 s
-    log holds the truth in its 99 % set (measured radius 0.82-1.00 over seeds 0-3; with 5 s logs
-    seed 0 misses, radius 1.01); every drawn plant stays within its per-joint bound, the bound lies
-    inside the tube it was computed on, within ~15x of the error (measured 14-15) and 3x below PD's
-    error. About 12 s."""
-    out = run_logs_to_control(LogsToControlConfig(robot="serial7", duration=8.0, draws=2))
+def test_seven_joint_arm_from_a_12_s_log():
+    """serial7 (48 base parameters, M changed by five joints: the reference tube is used): a 12 s
+    log holds the truth in its 99 % set (IV with the filter-aware sandwich covariance); every drawn
+    plant stays within its per-joint bound, the bound lies inside the tube it was computed on, within
+    30x of the error (measured 6-19) and below PD's measured error (0.0094 against 0.021 rad). With
+    the sounder, larger sandwich sets an 8 s log gives a bound above PD's error (0.029 rad) and a 5 s
+    log a diverged draw and bounds of 0.2-0.7 rad (verdict "not shown"). About 20 s."""
+    out = run_logs_to_control(LogsToControlConfig(robot="serial7", duration=12.0, draws=2))
     assert out["truth_radius"] <= 1.0 and out["region"]["kind"] == "tube" and out["region"]["consistent"]
     for d in out["draws"]:
         assert not d["diverged"] and d["within"], d
         assert d["ratio"] < 30.0, d
-    assert out["bound"] < out["pd_max_error"] / 3, (out["bound"], out["pd_max_error"])
+    assert out["guaranteed"], out["verdict"]
+    assert out["bound"] < out["pd_max_error"], (out["bound"], out["pd_max_error"])

@@ -102,3 +102,23 @@ def test_no_rigid_body_has_a_negative_link_inertia_and_the_nearest_valid_point_i
     pi = NearestPhysical(reg, pi_nom, theta, P)(theta)
     th = np.asarray(reg.K, float) @ pi
     assert th[i] > 0 and mahalanobis_radius(theta, P, th) <= 1.0 + 1e-6
+
+
+def test_verdict_names_every_failed_condition():
+    """logs-to-control's verdict: guaranteed only when every draw ran to the end within its bound and,
+    for a tube region, every bound lies inside the tube; each failure is named."""
+    import math
+
+    from robust_drake.experiments.logs_to_control import verdict
+
+    ok = {"diverged": False, "max_error": 1e-3, "within": True, "bound": 2e-3}
+    tube = {"kind": "tube", "delta": 0.05, "consistent": True}
+    assert verdict([ok, ok], tube)["guaranteed"] is True
+    assert verdict([ok], {"kind": "global"})["guaranteed"] is True
+    div = dict(ok, diverged=True, max_error=math.inf, within=False)
+    out = dict(ok, within=False, max_error=3e-3)
+    v = verdict([ok, div, out], dict(tube, consistent=False))
+    assert v["guaranteed"] is False
+    assert "[1] diverged" in v["verdict"] and "[2] left their bound" in v["verdict"]
+    assert "exceed the +-0.05 rad tube" in v["verdict"]
+    assert "[1]" not in v["verdict"].split("left")[1]  # a diverged draw is not also counted as outside

@@ -97,7 +97,8 @@ def _logs_to_control(say) -> dict:
     spread = ", ".join(f"{name} {100 * rel:.0f} %" for name, rel in top)
     say(f"truth at radius {r['truth_radius']:.2f} of the 99 % set; {len(r['draws'])} plants across the set "
         f"(half on its boundary; largest parameter changes from the truth: {spread}): "
-        f"max |e| {r['max_error']:.3g} rad <= bound {r['bound']:.3g} rad (PD {r['pd_max_error']:.3g} rad)")
+        f"max |e| {r['max_error']:.3g} rad, bound {r['bound']:.3g} rad (PD {r['pd_max_error']:.3g} rad); "
+        f"{r['verdict']}")
     return r
 
 

@@ -6,7 +6,10 @@ log, the 1 - alpha chi2 confidence ellipsoid of the base parameters is built
 (``uncertainty.confidence``), Calafiore & Indri's eq. 15 is designed from it, and plants drawn
 across the set (half on its boundary, half inside, each a physically valid arm:
 ``experiments.plant_draws``) are tracked; each run's largest error per joint after the transient
-is compared with that joint's ultimate bound (``experiments.ultimate_bound``).
+is compared with that joint's ultimate bound (``experiments.ultimate_bound``). The last line (and
+``--json``'s ``guaranteed`` / ``verdict``) says whether every draw stayed within its bound; the exit
+status is 1 when not (a diverged draw, a draw outside its bound, or bounds wider than the region
+M(q) was bounded over).
 """
 
 from __future__ import annotations
@@ -68,7 +71,7 @@ def run(args) -> int:
         out["plot"] = plot_logs_to_control(out, plots / "logs_to_control.png")
     if args.json:
         print_json(out)
-        return 0
+        return 0 if out["guaranteed"] else 1
     print(f"{args.robot}: {out['samples']} samples, {100 * (1 - args.alpha):g} % set, rho = {out['rho']:.4g}, "
           f"truth at Mahalanobis radius {out['truth_radius']:.3f}")
     top = sorted(out["spread"].items(), key=lambda kv: -kv[1])[:5]
@@ -85,7 +88,8 @@ def run(args) -> int:
     print(f"PD (same K, Lambda) max |e| after the transient: {out['pd_max_error']:.4g} rad")
     if plots is not None:
         print(f"figure: {out['plot']}")
-    return 0
+    print(f"verdict: {out['verdict']}")
+    return 0 if out["guaranteed"] else 1
 
 
 def _region(r) -> str:

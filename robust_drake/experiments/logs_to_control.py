@@ -17,12 +17,16 @@ DFKI C.1, the Siciliano arm, the PUMA 560's first three joints and serial7).
 3. :func:`robust_drake.uncertainty.confidence.confidence_ellipsoid` turns it into the 1 - alpha
    ellipsoid E(P, theta0) (CI eq. 10); the URDF's base parameters (the truth) must lie inside,
    else the run stops with an error. Measured: with 5 s logs the 99 % set held the truth in 20/20
-   experiments (seeds 0-19) on both 2-link arms (largest radius 1.00 on the C.1, 0.85 on the
-   Siciliano arm) and in 7/7 on the PUMA (seeds 0-6, radius 0.53-0.97); with 3 s logs only in
-   18/20 (C.1) and 17/20 (Siciliano), so ``--duration`` below 5 s is refused. serial7 (48 base
-   parameters) needs 8 s (seeds 0-3: radius 0.82-1.00; 5 s, seed 0: 1.01). The Panda (43) is not
-   covered even at 8 s (radius 1.08, 0.89, 1.11 for seeds 0-2, IV estimate; the largest whitened
-   errors in the wrist's tiny link-7 inertias): its IV covariance looks too small (not pursued).
+   experiments (seeds 0-19) on both 2-link arms (largest radius 1.00 on the C.1, 0.76 on the
+   Siciliano arm with the sandwich covariance of the IV fit, 0.85 with the old homoscedastic
+   one) and in 7/7 on the PUMA (seeds 0-6, radius 0.32-0.97); with 3 s logs only in 18/20 (C.1)
+   and 17/20 (Siciliano), so ``--duration`` below 5 s is refused. serial7 (48 base parameters):
+   the truth is inside at 5 s (radius 0.16-0.23, seeds 0-3) but the set is too large for a useful
+   bound before 12 s (see BUILD_NOTES; the result's ``verdict`` says so). The Panda (43) is not
+   supported: with the homoscedastic IV covariance the truth fell outside the set (radius 1.08,
+   0.89, 1.11 for seeds 0-2 at 8 s); with the sandwich covariance (a larger set) the identified
+   centre's M(q) is not positive definite on the reference (light wrist links, 8 s, seeds 0-2), and
+   the run stops with that error.
 4. CI eq. 15 (``calafiore`` controller) is built from (theta0, P) with the sampled-loop boundary
    layer (``ultimate_bound.sampled_layer``, M(q) of theta0 from the regressor along the loop's
    reference): ~100x below the previous rule max ||D E||^2 / min K on the PUMA with the same
@@ -289,7 +293,11 @@ def _run_draw(cfg, d, params, K, Lam, region, plant, theta0, P, eps_previous):
     d.setup(plant, ctx)
     mb = mass_bounds(plant, ctx, region, K)
     bj = per_joint_bound(params["epsilon"], mb, Lam)
-    ej = np.abs(res.q - res.q_d)[res.t >= cfg.transient].max(axis=0)
+    after = res.t >= cfg.transient
+    if res.diverged or not after.any():  # the run stopped before the transient ended: no bound holds
+        ej = np.full(len(bj), np.inf)
+    else:
+        ej = np.abs(res.q - res.q_d)[after].max(axis=0)
     return {"kind": d.kind, "radius": mahalanobis_radius(theta0, P, d.theta), "theta": d.theta.tolist(),
             "projected": bool(d.projected),
             "bound": max(bj), "max_error": float(ej.max()), "ratio": float(max(bj) / ej.max()),
@@ -299,6 +307,13 @@ def _run_draw(cfg, d, params, K, Lam, region, plant, theta0, P, eps_previous):
             "previous_bound": norm_bound(eps_previous, mb, Lam),
             "kappa": mb.kappa, "k_min_over_m_max": mb.k_min / mb.m_max,
             "sqrt_m_ratio": float(np.sqrt(mb.m_max / mb.m_min)), "minv": list(mb.minv)}
+
+
+def _covariance_kind(model) -> str:
+    """How the identified model's covariance was estimated (``model.data["covariance"]["kind"]``;
+    least squares without that entry: homoscedastic, inflated by N / N_eff)."""
+    kind = ((model.data or {}).get("covariance") or {}).get("kind")
+    return str(kind) if kind else "N/N_eff-inflated homoscedastic"
 
 
 def run_logs_to_control(cfg: LogsToControlConfig | None = None, out_dir: str | None = None) -> dict:
@@ -325,14 +340,35 @@ def run_logs_to_control(cfg: LogsToControlConfig | None = None, out_dir: str | N
     pd_err = float(np.max(np.abs(pd.q - pd.q_d)[pd.t >= cfg.transient]))
     return {"robot": cfg.robot, "alpha": cfg.alpha, "samples": int(model.data.get("samples", 0)),
             "estimator": model.estimator,
-            "uncertainty": {"kind": "ellipsoid", "source": f"chi2 {1 - cfg.alpha:g} confidence set of the "
-                            "identified base parameters (N/N_eff-inflated covariance)",
+            "uncertainty": {"kind": "ellipsoid", "source": f"{1 - cfg.alpha:g} confidence set of the identified "
+                            f"base parameters ({model.estimator}, {_covariance_kind(model)} covariance)",
                             "parameters": list(model.base_names), "theta0": theta0.tolist(), "P": P.tolist()},
             "rho": float(np.sqrt(np.linalg.eigvalsh(P)[-1])), "truth_radius": truth_r,
             "theta_true": truth.tolist(), "bound": max(d["bound"] for d in draws),
             "max_error": max(d["max_error"] for d in draws), "draws": draws, "rejected": rejected,
             "spread": _spread(plants, truth, list(reg.base_names)), "pd_max_error": pd_err,
-            "region": region_info, "epsilon_rule": layer, "K": K.tolist(), "Lambda": Lam.tolist()}
+            "region": region_info, "epsilon_rule": layer, "K": K.tolist(), "Lambda": Lam.tolist(),
+            **verdict(draws, region_info)}
+
+
+def verdict(draws, region_info) -> dict:
+    """``guaranteed`` (every drawn plant's loop ran to the end and stayed within its per-joint bound,
+    and, where M(q) was bounded over the reference tube, every bound lies inside that tube) and a
+    one-line ``verdict`` saying which condition failed and what to change."""
+    diverged = [i for i, d in enumerate(draws) if d["diverged"] or not np.isfinite(d["max_error"])]
+    outside = [i for i, d in enumerate(draws) if not d["within"] and i not in diverged]
+    reasons = []
+    if diverged:
+        reasons.append(f"the loop of draw(s) {diverged} diverged")
+    if outside:
+        reasons.append(f"draw(s) {outside} left their bound")
+    if region_info.get("kind") == "tube" and not region_info.get("consistent"):
+        reasons.append(f"bounds up to {max(d['bound'] for d in draws):.3g} rad exceed the +-{region_info['delta']} "
+                       "rad tube over which M(q) was bounded")
+    if not reasons:
+        return {"guaranteed": True, "verdict": "every drawn plant stayed within its bound"}
+    return {"guaranteed": False, "verdict": "not shown: " + "; ".join(reasons) + " (the identified set is too "
+            "large for this arm: a longer --duration or a lower --noise-fraction gives a smaller one)"}
 
 
 def plot_logs_to_control(out: dict, path) -> str:

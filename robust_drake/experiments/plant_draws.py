@@ -390,7 +390,14 @@ def _z(rng, p, kind):
 
 
 def _realise(reg, theta, pi_nom, sdp):
-    pi = make_physical(reg, standard_for_base(reg, theta, pi_nom))
+    """Standard parameters of a rigid-body arm with base parameters theta, or None: the closed-form
+    nearest point (:func:`standard_for_base`, :func:`make_physical`), else the SDP. A theta the
+    closed form cannot reach with the masses kept (the weighted normal equations lose it to
+    rounding, seen on serial7's larger sandwich-covariance sets) goes to the SDP as well."""
+    try:
+        pi = make_physical(reg, standard_for_base(reg, theta, pi_nom))
+    except RobustDrakeError:
+        pi = None
     return sdp(theta) if pi is None else pi
 
 
