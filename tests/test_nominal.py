@@ -74,3 +74,33 @@ def test_torque_scale_joint_is_chosen_against_the_urdf(e_true):
     # fitted on the right joint already: kept
     res = NM.resolve_torque_scale(theta0, se, theta0, joint=1, gain_error=e_true, n=2)
     assert not res["swapped"] and res["joint"] == 1
+
+
+def test_fixed_rigid_fit_holds_effect_coefficients_inside_their_bounds():
+    """With the rigid body fixed at the URDF's, a torque_scale coefficient that the free fit puts
+    outside (-0.5, 0.5) is held at the bound and the other columns refitted: the output-error
+    prediction tau_hat = m / (1 + c) must not be evaluated near c = -1 (the jittered A.0 case read
+    22.7 N m)."""
+    from types import SimpleNamespace
+
+    rng = np.random.default_rng(1)
+    N = 400
+    x, v = rng.normal(size=N), rng.normal(size=N)
+    tau = np.column_stack([0.3 * x + 0.05 * v + 0.01 * rng.normal(size=N), 0.2 * rng.normal(size=N)])
+    Y = np.zeros((N, 2, 3))
+    Y[:, 0, 0], Y[:, 1, 0] = x, 0.5 * x          # rigid-body column, fixed at theta0 = 2
+    Y[:, 0, 1] = v                                # a free (friction-like) column
+    Y[:, 0, 2] = -tau[:, 0]                       # torque_scale[0]: column -tau_0
+    ts = make_effect("torque_scale", 0)
+    cache = SimpleNamespace(model=lambda effects: (Y, None, [slice(2, 3)]), data=SimpleNamespace(tau=tau))
+    w = np.array([1.0, 1.0])
+    rhs = tau - Y[:, :, 0] * 2.0
+    free = np.linalg.lstsq(Y[:, 0, 1:], rhs[:, 0], rcond=None)[0]
+    assert free[1] > 0.5  # the unconstrained fit leaves the bound (the case the rule is for)
+    th = NM.fit_with_fixed_rigid(cache, [ts], np.array([2.0]), w)
+    assert th[0] == 2.0 and th[2] == 0.5
+    want = np.linalg.lstsq(Y[:, 0, 1:2], rhs[:, 0] - Y[:, 0, 2] * 0.5, rcond=None)[0][0]
+    assert th[1] == pytest.approx(want, rel=1e-10)
+    inside = NM.fit_with_fixed_rigid(SimpleNamespace(model=cache.model, data=SimpleNamespace(tau=tau)),
+                                     [ts], np.array([0.3]), w)
+    assert abs(inside[2]) < 0.5  # nothing clipped when the fit is admissible
