@@ -122,3 +122,35 @@ def test_verdict_names_every_failed_condition():
     assert "[1] diverged" in v["verdict"] and "[2] left their bound" in v["verdict"]
     assert "exceed the +-0.05 rad tube" in v["verdict"]
     assert "[1]" not in v["verdict"].split("left")[1]  # a diverged draw is not also counted as outside
+
+
+def test_recentred_set_is_a_rigid_body_and_holds_the_whole_identified_set():
+    """A set whose centre is no rigid-body arm (the elbow's Izz_link3 and rotor inertia negative, so
+    M(q) is not positive definite): eq. 15 is designed on theta_c, the nearest physically valid
+    point of the set, with P inflated by (1 + r_c)^2; theta_c's M(q) is positive definite and every
+    point of the identified set (boundary samples) lies in the inflated set around theta_c."""
+    from robust_drake.experiments.logs_to_control import recentre_on_rigid_body
+    from robust_drake.experiments.ultimate_bound import mass_matrices
+    from robust_drake.regressor import InverseDynamicsRegressor
+    from robust_drake.uncertainty.confidence import mahalanobis_radius
+
+    reg = InverseDynamicsRegressor.from_robot("puma560_3link")
+    truth = reg.base_parameters()
+    b = 0.3 * np.abs(truth) + 1e-2
+    theta0 = truth.copy()
+    for k in (11, 15):  # Izz_link3, Ia_joint3: pushed below zero, the truth kept inside the set
+        b[k] = 3.0 * abs(truth[k])
+        theta0[k] = -0.9 * abs(truth[k])
+    P = np.diag(b ** 2)
+    assert mahalanobis_radius(theta0, P, truth) <= 1.0
+    rng = np.random.default_rng(0)
+    q = rng.uniform(-np.pi, np.pi, (50, 3))
+    assert np.linalg.eigvalsh(mass_matrices(reg, theta0, q))[:, 0].min() <= 0  # the case
+    theta_c, P_c, info = recentre_on_rigid_body(reg, theta0, P)
+    assert 0.0 < info["radius"] < 1.0 and np.isclose(info["inflation"], (1 + info["radius"]) ** 2)
+    assert np.linalg.eigvalsh(mass_matrices(reg, theta_c, q))[:, 0].min() > 0
+    L = np.linalg.cholesky(P)
+    for _ in range(200):
+        z = rng.normal(size=len(theta0))
+        theta = theta0 + L @ (z / np.linalg.norm(z))  # on the identified set's boundary
+        assert mahalanobis_radius(theta_c, P_c, theta) <= 1.0 + 1e-9

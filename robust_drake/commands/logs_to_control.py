@@ -79,6 +79,10 @@ def run(args) -> int:
           "in --json): " + ", ".join(f"{k if len(k) <= 40 else k[:37] + '...'} {100 * v:.3g} %" for k, v in top))
     print(f"{out['rejected']} draws no rigid body realises were redrawn, "
           f"{sum(d['projected'] for d in out['draws'])} replaced by the nearest valid point of the set")
+    rc = out["epsilon_rule"].get("recentred")
+    if rc:
+        print(f"the identified centre is no rigid-body arm: eq. 15 is designed on the nearest one in the set "
+              f"(radius {rc['radius']:.3f}) with the set inflated {rc['inflation']:.3g}x to keep all of it")
     print(f"boundary layer epsilon {out['epsilon_rule']['epsilon']:.4g} (previous rule "
           f"{out['epsilon_rule']['previous_rule_epsilon']:.4g}); M(q) over {_region(out['region'])}")
     rows = [[i, d["kind"] + (" (nearest valid)" if d["projected"] else ""), d["radius"], d["bound"], d["max_error"],
