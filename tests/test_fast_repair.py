@@ -18,6 +18,7 @@ import textwrap
 import numpy as np
 import pytest
 
+from fourier_motion import fourier_motion
 from robust_drake.identification.data import FilterSettings, IdentData, zero_phase_lowpass
 from robust_drake.identification.fitting import ColumnCache, predict_tau
 from robust_drake.identification.least_squares import (
@@ -36,16 +37,8 @@ def reg():
 
 
 def _segment(N, dt, seed, t0):
-    rng = np.random.default_rng(seed)
     t = t0 + np.arange(N) * dt
-    q, qd, qdd = (np.zeros((N, 2)) for _ in range(3))
-    for j in range(2):
-        for k in range(1, 5):
-            a, ph, w = rng.normal() / k, rng.uniform(0, 2 * np.pi), 2 * np.pi * 0.3 * k
-            q[:, j] += a * np.sin(w * t + ph)
-            qd[:, j] += a * w * np.cos(w * t + ph)
-            qdd[:, j] -= a * w * w * np.sin(w * t + ph)
-    return t, q, qd, qdd
+    return (t, *fourier_motion(t, np.random.default_rng(seed), 0.3))
 
 
 def _data(reg, seed=0, noise=0.01, cutoff=8.0):

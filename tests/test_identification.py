@@ -5,6 +5,7 @@ import warnings
 import numpy as np
 import pytest
 
+from fourier_motion import fourier_motion
 from robust_drake.model_repair import residual as R
 from robust_drake.identification.consistency import consistent_identification, pseudo_inertia
 from robust_drake.identification.data import DataWarning, FilterSettings, IdentData
@@ -25,13 +26,7 @@ def reg():
 def _trajectory(N=4000, dt=0.004, seed=0, freeze_joint2=False):
     rng = np.random.default_rng(seed)
     t = np.arange(N) * dt
-    q, qd, qdd = (np.zeros((N, 2)) for _ in range(3))
-    for j in range(2):
-        for k in range(1, 5):
-            a, ph, w = rng.normal() / k, rng.uniform(0, 2 * np.pi), 2 * np.pi * 0.2 * k
-            q[:, j] += a * np.sin(w * t + ph)
-            qd[:, j] += a * w * np.cos(w * t + ph)
-            qdd[:, j] -= a * w * w * np.sin(w * t + ph)
+    q, qd, qdd = fourier_motion(t, rng, 0.2)
     if freeze_joint2:
         q[:, 1], qd[:, 1], qdd[:, 1] = 0.3, 0.0, 0.0
     return t, q, qd, qdd
