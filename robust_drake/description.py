@@ -73,6 +73,8 @@ __all__ = ["RobotDescription", "DEFAULT", "describe", "description_path", "load_
            "packaged_descriptions", "packaged_description", "ControllerDesign", "FLEXIBILITY_KEYS"]
 
 DRIVES = ("direct", "geared", "qdd", "unknown")
+#: Sample rate [Hz] of a closed loop whose robot description gives no ``sample_rate`` (JS section 8)
+DEFAULT_RATE = 2500.0
 TORQUE_INTERFACES = ("link_side", "motor")
 #: Keys of a description's ``flexibility`` mapping (:func:`robust_drake.systems.flexibility.
 #: d2r2_flexibility`): two-mass drives on every joint, the first bending mode of the last link.
@@ -143,10 +145,11 @@ class RobotDescription:
     source: str | None = None  # the file it was read from
 
     def closed_loop_defaults(self) -> dict:
-        """``plant_friction``, ``encoder_resolution`` and ``torque_limit`` defaults of
-        ``ClosedLoopConfig`` for this robot."""
+        """``plant_friction``, ``encoder_resolution``, ``torque_limit`` and ``rate`` defaults of
+        ``ClosedLoopConfig`` for this robot (``rate``: ``sample_rate``, else :data:`DEFAULT_RATE`)."""
         pf = self.plant_friction
         return {
+            "rate": float(self.sample_rate) if self.sample_rate else DEFAULT_RATE,
             "plant_friction": None if pf is None else {k: list(pf[k]) for k in ("coulomb", "viscous")},
             "encoder_resolution": self.encoder_resolution,
             "torque_limit": list(self.torque_limits) if self.saturate and self.torque_limits else None,

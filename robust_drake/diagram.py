@@ -112,7 +112,9 @@ class ClosedLoopConfig:
     trajectory_params : dict
         Reference parameters.
     rate : float
-        Controller and observer sample rate [Hz] (JS: 2500).
+        Controller and observer sample rate [Hz]; default: the robot description's
+        ``sample_rate`` (the D2R2: 2500, JS section 8; the Panda: 1000, Franka's control
+        interface), 2500 for a robot whose description gives none.
     observer : str, LeafSystem or callable
         Velocity estimator (default ``"averaging"``, JS eqs. 64/66): a registry name, an instance
         or a factory, as for ``controller``.
@@ -164,7 +166,7 @@ class ClosedLoopConfig:
     controller_params: dict = field(default_factory=dict)
     trajectory: str = "cpt"
     trajectory_params: dict = field(default_factory=dict)
-    rate: float = 2500.0
+    rate: Any = _DEFAULT
     observer: str = "averaging"
     observer_params: dict = field(default_factory=dict)
     plant_friction: Any = _DEFAULT
@@ -247,7 +249,7 @@ def _check_config(c: "ClosedLoopConfig") -> None:
         v = getattr(c, name)
         if not isinstance(v, dict) or not all(isinstance(k, str) for k in v):
             raise RobustDrakeError(f"{name} must be a dict of name -> value (got {v!r})")
-    if not _finite_positive(c.rate):
+    if c.rate is not _DEFAULT and not _finite_positive(c.rate):
         raise RobustDrakeError(f"sample rate must be a positive finite number of Hz (got {c.rate!r})")
     if c.duration is not None and not _finite_positive(c.duration):
         raise RobustDrakeError(f"duration must be a positive finite number of seconds or None (got {c.duration!r})")

@@ -184,3 +184,16 @@ def test_nonlinear_observer_takes_theta_from_the_description(tmp_path):
     with pytest.raises(RobustDrakeError, match="theta of JS eq. 14"):
         make_nonlinear(ctx("imi_scara"))
     assert tuple(make_nonlinear(ctx("imi_scara"), theta=(0.5, 0.1, 0.05)).theta) == (0.5, 0.1, 0.05)
+
+
+def test_sample_rate_defaults_to_the_robots_description():
+    """The closed loop's rate comes from the robot's description (Franka's control interface runs
+    at 1 kHz, JS section 8's DSP at 2500 Hz), 2500 Hz where none is given; a user's rate wins."""
+    from robust_drake.diagram import ClosedLoopConfig, build_closed_loop
+
+    assert ClosedLoopConfig(robot="panda").resolved().rate == 1000.0
+    assert ClosedLoopConfig(robot="d2r2").resolved().rate == 2500.0
+    assert ClosedLoopConfig(robot="serial7").resolved().rate == 2500.0
+    assert ClosedLoopConfig(robot="panda", rate=500.0).resolved().rate == 500.0
+    loop = build_closed_loop(ClosedLoopConfig(robot="panda", controller="pd", trajectory="sine", duration=0.01))
+    assert loop.period == 1e-3

@@ -21,7 +21,9 @@ def register(sub):
                         "offset=[0,0,0,-1.57,0,1.87,0] (sine/step/cpt/refmodel; default offset: q = 0 where "
                         "inside the joint limits, else the middle of the range)")
     p.add_argument("--observer", default="averaging", help="velocity estimator (default averaging, JS eqs. 64/66)")
-    p.add_argument("--rate", type=float, default=2500.0, help="controller/observer sample rate [Hz] (default 2500)")
+    p.add_argument("--rate", type=float, default=None,
+                   help="controller/observer sample rate [Hz] (default: the robot description's sample_rate, "
+                        "else 2500; the D2R2 2500, the Panda 1000)")
     p.add_argument("--duration", type=float, default=None, help="simulated time [s] (default: the trajectory's)")
     p.add_argument("--skip", type=non_negative(float, "--skip"), default=None,
                    help="ignore the first SKIP s in the metrics (default 0; 1 s for the circle as in JS section 10)")
@@ -48,7 +50,7 @@ def run(args) -> int:
     from robust_drake.cli import plot_dir
 
     plots = plot_dir(args)
-    if not args.rate > 0:
+    if args.rate is not None and not args.rate > 0:
         raise RobustDrakeError(f"--rate must be positive (got {args.rate})")
     flex = None
     if args.flexible:
@@ -64,10 +66,11 @@ def run(args) -> int:
     cfg = ClosedLoopConfig(robot=args.robot, load=args.load, controller=args.controller,
                            trajectory=args.trajectory, trajectory_params=_key_values(args.trajectory_param,
                                                                                      "--trajectory-param"),
-                           observer=args.observer, rate=args.rate,
+                           observer=args.observer, **({} if args.rate is None else {"rate": args.rate}),
                            duration=args.duration, metrics_skip=skip,
                            friction_compensation=args.friction_compensation, flexibility=flex)
     loop = build_closed_loop(cfg)
+    args.rate = float(loop.config.rate)  # the description's sample rate when --rate is not given
     import sys
 
     from robust_drake.log import slow_step
@@ -113,8 +116,14 @@ def run(args) -> int:
               f"friction compensation {'on' if args.friction_compensation else 'off'}, "
               f"{res.sim_seconds:.2f} s simulated in {res.wall_seconds:.2f} s"
               + (f"  ** DIVERGED: {res.divergence_reason} **" if res.diverged else ""))
-        print(format_table([[out[k] for k in METRIC_KEYS]],
-                           ["|error1| rad", "maxerr1 rad", "|error2| rad", "maxerr2 rad", "|error_task| m", "maxerr_task m"]))
+        if loop.n == 2:  # JS eqs. 55, 56, 58, 59 as the paper tabulates them
+            print(format_table([[out[k] for k in METRIC_KEYS]],
+                               ["|error1| rad", "maxerr1 rad", "|error2| rad", "maxerr2 rad", "|error_task| m",
+                                "maxerr_task m"]))
+        else:  # one row per joint, 0-based with its URDF name (JSON keys error1..errorN: JS eq. 55's)
+            names = loop.joint_limits.names
+            print(format_table([[j, names[j], out.get(f"error{j + 1}"), out.get(f"maxerr{j + 1}")]
+                                for j in range(loop.n)], ["joint", "name", "|error| rad", "maxerr rad"]))
         if unc is not None:
             print(f"uncertainty: {unc.get('kind')} ({unc.get('source', '')}), rho = {rho}")
         if plot:
