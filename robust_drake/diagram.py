@@ -638,7 +638,8 @@ class ClosedLoop:
             diverged = True
         link_lengths = self.arm.link_lengths if len(self.arm.link_lengths) == 2 else None
         if diverged or len(t) < 2:
-            metrics = {k: float("nan") for k in ("error1", "maxerr1", "error2", "maxerr2", "error_task", "maxerr_task")}
+            metrics = {k: float("nan") for j in range(1, max(n, 2) + 1) for k in (f"error{j}", f"maxerr{j}")}
+            metrics.update(error_task=float("nan"), maxerr_task=float("nan"))
         else:
             metrics = error_criteria(t, q, XD[:, :n], link_lengths, skip=c.metrics_skip, dt=c.metrics_dt)
         tau = logs["tau"]

@@ -209,3 +209,19 @@ def test_w_energy_reduction_grows_with_the_gains_and_without_beta0():
     assert not any(r["diverged"] for r in rows)
     assert 0 < low < high and high > 2 * low, (low, high)
     assert nob0 > 2 * low, (low, nob0)
+
+
+def test_blown_up_state_is_reported_as_diverged_not_an_abort():
+    """Drake aborts the process on SetPositions with a non-finite q; the BR controller's model gives
+    NaN there instead, so Case A blowing up on the Panda (1 kHz, step) ends as a diverged run with
+    NaN criteria for every joint."""
+    from robust_drake.diagram import ClosedLoopConfig, build_closed_loop
+    from robust_drake.systems.controllers.bascetta_rocco import ModelDynamics
+
+    m = ModelDynamics("siciliano_2link")
+    assert np.isnan(m.M(np.array([np.nan, 0.0]))).all()
+    assert np.isnan(m.n_term(np.zeros(2), np.array([np.inf, 0.0]))).all()
+    res = build_closed_loop(ClosedLoopConfig(robot="panda", controller="bascetta_a", trajectory="step",
+                                             duration=0.3)).simulate()
+    assert res.diverged
+    assert all(np.isnan(res.metrics[f"error{j}"]) for j in range(1, 8))

@@ -88,6 +88,10 @@ class ModelDynamics:
         self._x = np.zeros(2 * self.n)
 
     def M(self, q):
+        """M(q) of the model; NaN for a non-finite q (Drake aborts the process on one, so a blown-up
+        loop would die here instead of being reported as diverged)."""
+        if not np.all(np.isfinite(q)):
+            return np.full((self.n, self.n), np.nan)
         self.plant.SetPositions(self.context, q)
         return self.plant.CalcMassMatrix(self.context)
 
@@ -95,6 +99,8 @@ class ModelDynamics:
         x = self._x
         x[:self.n] = q
         x[self.n:] = v
+        if not np.all(np.isfinite(x)):  # as in M: NaN torque, reported as a diverged run
+            return np.full(self.n, np.nan)
         self.plant.SetPositionsAndVelocities(self.context, x)
         return self.plant.CalcBiasTerm(self.context) - self.plant.CalcGravityGeneralizedForces(self.context)
 
