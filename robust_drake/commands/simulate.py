@@ -26,7 +26,8 @@ def register(sub):
                         "else 2500; the D2R2 2500, the Panda 1000)")
     p.add_argument("--duration", type=float, default=None, help="simulated time [s] (default: the trajectory's)")
     p.add_argument("--skip", type=non_negative(float, "--skip"), default=None,
-                   help="ignore the first SKIP s in the metrics (default 0; 1 s for the circle as in JS section 10)")
+                   help="ignore the first SKIP s in the metrics (default 0; for the circle 1 s as in JS section 10, "
+                        "or a seventh of a shorter --duration, as compare does)")
     p.add_argument("--friction-compensation", action="store_true",
                    help="add the fixed compensation of JS eqs. 89-90 (default off, as in compare's tables 2-3; "
                         "sweep-rate turns it on)")
@@ -62,12 +63,11 @@ def run(args) -> int:
         from robust_drake.systems.flexibility import d2r2_flexibility
 
         flex = d2r2_flexibility(args.load, robot=args.robot)
-    skip = args.skip if args.skip is not None else (1.0 if args.trajectory == "circle" else 0.0)
     cfg = ClosedLoopConfig(robot=args.robot, load=args.load, controller=args.controller,
                            trajectory=args.trajectory, trajectory_params=_key_values(args.trajectory_param,
                                                                                      "--trajectory-param"),
                            observer=args.observer, **({} if args.rate is None else {"rate": args.rate}),
-                           duration=args.duration, metrics_skip=skip,
+                           duration=args.duration, metrics_skip=_metrics_skip(args),
                            friction_compensation=args.friction_compensation, flexibility=flex)
     loop = build_closed_loop(cfg)
     args.rate = float(loop.config.rate)  # the description's sample rate when --rate is not given
@@ -112,25 +112,43 @@ def run(args) -> int:
     if args.json:
         print_json(out)
     else:
-        print(f"{args.controller} on {args.robot}{' (flexible)' if args.flexible else ''} (load {args.load}), {args.trajectory}, {args.rate:g} Hz, "
-              f"friction compensation {'on' if args.friction_compensation else 'off'}, "
-              f"{res.sim_seconds:.2f} s simulated in {res.wall_seconds:.2f} s"
-              + (f"  ** DIVERGED: {res.divergence_reason} **" if res.diverged else ""))
-        if loop.n == 2:  # JS eqs. 55, 56, 58, 59 as the paper tabulates them
-            print(format_table([[out[k] for k in METRIC_KEYS]],
-                               ["|error1| rad", "maxerr1 rad", "|error2| rad", "maxerr2 rad", "|error_task| m",
-                                "maxerr_task m"]))
-        else:  # one row per joint, 0-based with its URDF name (JSON keys error1..errorN: JS eq. 55's)
-            names = loop.joint_limits.names
-            print(format_table([[j, names[j], out.get(f"error{j + 1}"), out.get(f"maxerr{j + 1}")]
-                                for j in range(loop.n)], ["joint", "name", "|error| rad", "maxerr rad"]))
-        if unc is not None:
-            print(f"uncertainty: {unc.get('kind')} ({unc.get('source', '')}), rho = {rho}")
-        if plot:
-            print(f"plot: {plot}")
+        _print_text(args, out, loop, res, plot)
     if vis is not None and sys.stdin.isatty():
         input("Meshcat: replay the recording in the browser; press Enter to stop the server ")
     return 1 if res.diverged else 0
+
+
+def _metrics_skip(args) -> float:
+    """--skip, else 0; on the circle 1 s as JS section 10, or a seventh of a shorter --duration."""
+    from robust_drake.experiments.jaritz_spong import CIRCLE_SKIP
+
+    if args.skip is not None:
+        return args.skip
+    if args.trajectory != "circle":
+        return 0.0
+    return CIRCLE_SKIP if args.duration is None else min(CIRCLE_SKIP, args.duration / 7.0)
+
+
+def _print_text(args, out, loop, res, plot) -> None:
+    """The run as text: one line about it, the criteria (JS eqs. 55, 56, 58, 59 for a 2-link arm,
+    one row per joint otherwise), the uncertainty set of a robust controller, the plot."""
+    print(f"{args.controller} on {args.robot}{' (flexible)' if args.flexible else ''} (load {args.load}), "
+          f"{args.trajectory}, {args.rate:g} Hz, friction compensation {'on' if args.friction_compensation else 'off'}, "
+          f"{res.sim_seconds:.2f} s simulated in {res.wall_seconds:.2f} s"
+          + (f"  ** DIVERGED: {res.divergence_reason} **" if res.diverged else ""))
+    if loop.n == 2:  # JS eqs. 55, 56, 58, 59 as the paper tabulates them
+        print(format_table([[out[k] for k in METRIC_KEYS]],
+                           ["|error1| rad", "maxerr1 rad", "|error2| rad", "maxerr2 rad", "|error_task| m",
+                            "maxerr_task m"]))
+    else:  # one row per joint, 0-based with its URDF name (JSON keys error1..errorN: JS eq. 55's)
+        names = loop.joint_limits.names
+        print(format_table([[j, names[j], out.get(f"error{j + 1}"), out.get(f"maxerr{j + 1}")]
+                            for j in range(loop.n)], ["joint", "name", "|error| rad", "maxerr rad"]))
+    if out.get("uncertainty") is not None:
+        unc = out["uncertainty"]
+        print(f"uncertainty: {unc.get('kind')} ({unc.get('source', '')}), rho = {out['rho']}")
+    if plot:
+        print(f"plot: {plot}")
 
 
 def _key_values(items, option: str) -> dict:
