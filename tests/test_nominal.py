@@ -104,3 +104,20 @@ def test_fixed_rigid_fit_holds_effect_coefficients_inside_their_bounds():
     inside = NM.fit_with_fixed_rigid(SimpleNamespace(model=cache.model, data=SimpleNamespace(tau=tau)),
                                      [ts], np.array([0.3]), w)
     assert abs(inside[2]) < 0.5  # nothing clipped when the fit is admissible
+
+
+def test_warning_when_the_urdf_model_validates_better_on_every_joint():
+    """The repair's verdict compares with the free baseline; when the URDF's rigid body validates
+    better than the repaired model on every joint (beyond the never-worse tolerance) a warning says
+    so, and not when the repaired model wins on any joint."""
+    from robust_drake.model_repair.pipeline import urdf_model_validates_better
+
+    rng = np.random.default_rng(0)
+    r = rng.normal(size=(5000, 2)) * np.array([0.3, 0.12])  # repaired model's validation residual
+    rms = np.sqrt(np.mean(r ** 2, axis=0))
+    nominal = {"rms_validate": (0.8 * rms).tolist(), "chi2": 38.7}
+    msg = urdf_model_validates_better(nominal, r, 0.01)
+    assert msg and "validate better than the repaired model on every joint" in msg and "38.7" in msg
+    assert urdf_model_validates_better({"rms_validate": [0.8 * rms[0], 1.2 * rms[1]], "chi2": 1.0}, r, 0.01) is None
+    assert urdf_model_validates_better({"rms_validate": (0.995 * rms).tolist(), "chi2": 1.0}, r, 0.01) is None
+    assert urdf_model_validates_better(None, r, 0.01) is None

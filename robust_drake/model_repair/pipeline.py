@@ -289,12 +289,33 @@ def run_repair(fit_paths, options: RepairOptions, validate_paths=None, out_dir=N
         nominal = S.compare_nominal(inp, sel, fin, guard, opts, log)
     _rate_plausibility(fin.effects_out, opts.robot)
     warn_msgs = list(dict.fromkeys(inp.warnings + sorted({str(w.message) for w in caught})))
+    urdf_better = urdf_model_validates_better(nominal, fin.val_residual, guard.tolerance)
+    if urdf_better:
+        warn_msgs.append(urdf_better)
     result = RP.RepairResult(opts, inp, base, est, sel, guard, fin, nominal, cons, replay_out, warn_msgs)
     report = RP.build_report(result)
     inp.cf.release(result.selection.chosen)  # the candidates' columns are not needed for plots and files
     if out_path is not None:
         _write_report(report, result, out_path, fit_paths, validate_paths)
     return report
+
+
+def urdf_model_validates_better(nominal, val_residual, tol: float) -> str | None:
+    """A warning when the URDF's rigid body (friction and kept effects refitted on it, the nominal
+    comparison's "URDF-model validate") validates better than the repaired model on every joint by
+    more than ``tol`` (the never-worse tolerance): the free fit's rigid-body parameters then do not
+    carry over to the validation data, and the verdict, which compares with the free baseline,
+    would not say so. None otherwise (or without a nominal comparison / validation data)."""
+    if not nominal or val_residual is None or len(val_residual) == 0:
+        return None
+    urdf = np.asarray(nominal["rms_validate"], float)
+    repaired = np.sqrt(np.mean(np.asarray(val_residual, float) ** 2, axis=0))
+    if not (urdf.shape == repaired.shape and np.all(urdf * (1.0 + tol) < repaired)):
+        return None
+    return (f"the URDF's rigid-body parameters (friction and kept effects refitted on them) validate better than "
+            f"the repaired model on every joint: {np.round(urdf, 4).tolist()} vs {np.round(repaired, 4).tolist()} "
+            f"N m RMS; the free fit's parameter shift (chi2 {nominal['chi2']:.1f}) does not carry over to the "
+            "validation data: consider keeping the URDF's parameters")
 
 
 def _rate_plausibility(rows: list[dict], robot) -> None:
