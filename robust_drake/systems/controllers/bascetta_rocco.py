@@ -45,9 +45,8 @@ from robust_drake.errors import RobustDrakeError
 from robust_drake.systems.controllers.base import DiscreteController, diag_gain
 
 DEFAULT_PERTURBATION = {"link1": 1.2, "link2": 1.2}
-#: The case-study arm (its description says ``controller_design.br_mass_model: diag_q0``) keeps BR
-#: section V's constant M_hat = diag(M(0)); other arms use M_hat(q).
-CASE_STUDY_ROBOT = "siciliano_2link"
+#: BR section V's constant M_hat = diag(M(0)) is chosen by the robot's description
+#: (``controller_design.br_mass_model: diag_q0``, the Siciliano case-study arm); other arms use M_hat(q).
 
 
 def default_perturbation(robot: str, load: str = "none", factor: float = 1.2) -> dict:
