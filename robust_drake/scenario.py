@@ -199,25 +199,11 @@ class Scenario:
 
 
 def _plant_setup_callable(entry):
-    """``["module:function", {params}]`` -> ``f(plant, plant_context)`` (serialisable form of
-    ClosedLoopConfig.plant_setup, e.g. Monte Carlo "true" parameters of a robot)."""
-    import functools
-    import importlib
+    """``["module:function", {params}]`` -> ``f(plant, plant_context)``
+    (:func:`robust_drake.diagram.plant_setup_callable`)."""
+    from robust_drake.diagram import plant_setup_callable
 
-    if isinstance(entry, str):
-        target, params = entry, {}
-    elif isinstance(entry, (list, tuple)) and len(entry) in (1, 2) and isinstance(entry[0], str):
-        target, params = entry[0], (dict(entry[1]) if len(entry) == 2 else {})
-    else:
-        raise RobustDrakeError(
-            f"plant_setup entries must be 'module:function' or ['module:function', {{params}}], "
-            f"got {entry!r}")
-    module_name, _, func_name = target.partition(":")
-    try:
-        func = getattr(importlib.import_module(module_name), func_name)
-    except (ImportError, AttributeError) as exc:
-        raise RobustDrakeError(f"plant_setup {target!r} not found: {exc}") from None
-    return functools.partial(func, **params)
+    return plant_setup_callable(entry)
 
 
 def _normalise(x):
