@@ -38,6 +38,7 @@ from pydrake.systems.primitives import LogVectorOutput, Multiplexer, Saturation
 from robust_drake.description import describe
 from robust_drake.divergence import STATE_LIMIT, TRACKING_ERROR_LIMIT, is_diverged
 from robust_drake.errors import RobustDrakeError
+from robust_drake.loop_defaults import LOOP_DEFAULTS
 from robust_drake.metrics import error_criteria, torque_statistics
 from robust_drake.models import ArmSpec, JointLimits, ROBOTS, add_arm, get_arm, set_d2r2_theta
 from robust_drake.registry import BuildContext, block_label, is_block_spec, make_block
@@ -174,24 +175,24 @@ class ClosedLoopConfig:
         cancelled in the command (u - force) before saturation.
     """
 
-    robot: str = "d2r2"
-    load: str = "none"
-    controller: str = "sp1"
+    robot: str = LOOP_DEFAULTS["robot"]
+    load: str = LOOP_DEFAULTS["load"]
+    controller: str = LOOP_DEFAULTS["controller"]
     controller_params: dict = field(default_factory=dict)
-    trajectory: str = "cpt"
+    trajectory: str = LOOP_DEFAULTS["trajectory"]
     trajectory_params: dict = field(default_factory=dict)
     rate: Any = _DEFAULT
-    observer: str = "averaging"
+    observer: str = LOOP_DEFAULTS["observer"]
     observer_params: dict = field(default_factory=dict)
     plant_friction: Any = _DEFAULT
-    friction_compensation: bool = False
+    friction_compensation: bool = LOOP_DEFAULTS["friction_compensation"]
     compensation_params: dict = field(default_factory=dict)
     encoder_resolution: Any = _DEFAULT
     torque_limit: Any = _DEFAULT
-    duration: float | None = None
+    duration: float | None = LOOP_DEFAULTS["duration"]
     metrics_skip: float = 0.0
     metrics_dt: float | None = 0.01
-    true_theta: list | None = None
+    true_theta: list | None = LOOP_DEFAULTS["true_theta"]
     initial_q: list | None = None
     effects: list = field(default_factory=list)
     plant_setup: list = field(default_factory=list)
@@ -572,7 +573,7 @@ class ClosedLoop:
         setups, and the controller's model, feedforward and compensation blocks."""
         c = self.config
         self.model_plant_setup, self.model_effects, self.model_feedforward, self.model_compensation = [], [], [], []
-        self.model_params = {}
+        self.model_params, self.not_compensated = {}, {}
         for m, what in ((c.plant_model, "plant_model"), (c.model, "model")):
             if m is not None:
                 _check_model_robot(m, c.robot, c.load, what)

@@ -44,6 +44,7 @@ from dataclasses import asdict, dataclass, field, fields
 from typing import Any, Iterable
 
 from robust_drake.errors import RobustDrakeError
+from robust_drake.loop_defaults import LOOP_DEFAULTS, robot_rate
 
 __all__ = [
     "Scenario",
@@ -81,7 +82,9 @@ _EXTRA_TO_CONFIG = {"effects": lambda v: [tuple(e) for e in v],
 
 @dataclass
 class Scenario:
-    """One closed loop, as plain data.
+    """One closed loop, as plain data: overrides of :class:`robust_drake.diagram.ClosedLoopConfig`
+    (same defaults, :data:`robust_drake.loop_defaults.LOOP_DEFAULTS`; ``rate`` None = the robot
+    description's, as the config's).
 
     ``friction`` switches the plant's Coulomb + viscous friction on (the robot's default
     values) or off; ``extra`` passes further :class:`ClosedLoopConfig` fields (``torque_limit``,
@@ -93,24 +96,31 @@ class Scenario:
     ``label`` is a display name only (not part of the id).
     """
 
-    robot: str = "d2r2"
-    load: str = "none"
-    controller: str = "sp1"
+    robot: str = LOOP_DEFAULTS["robot"]
+    load: str = LOOP_DEFAULTS["load"]
+    controller: str = LOOP_DEFAULTS["controller"]
     controller_params: dict = field(default_factory=dict)
-    trajectory: str = "cpt"
+    trajectory: str = LOOP_DEFAULTS["trajectory"]
     trajectory_params: dict = field(default_factory=dict)
-    rate: float = 2500.0
-    observer: str = "averaging"
+    rate: float | None = None  # None: the robot description's (ClosedLoopConfig's default)
+    observer: str = LOOP_DEFAULTS["observer"]
     observer_params: dict = field(default_factory=dict)
     friction: bool = True
-    friction_compensation: bool = False
+    friction_compensation: bool = LOOP_DEFAULTS["friction_compensation"]
     seed: int = 0
-    duration: float | None = None
-    true_theta: list | None = None
+    duration: float | None = LOOP_DEFAULTS["duration"]
+    true_theta: list | None = LOOP_DEFAULTS["true_theta"]
     draw: int | None = None
     tags: dict = field(default_factory=dict)
     extra: dict = field(default_factory=dict)
     label: str | None = None
+
+    def __post_init__(self):
+        if self.rate is None:  # the rate ClosedLoopConfig takes for this robot (its description's)
+            try:
+                self.rate = robot_rate(self.robot)
+            except RobustDrakeError:  # an unknown robot: validate_scenarios names it
+                self.rate = float("nan")
 
     # ------------------------------------------------------------------ identity
     def canonical(self) -> dict:

@@ -260,7 +260,8 @@ class IdentifiedModel:
         feedforward.terms = [eff.name for eff, _ in terms]
         return feedforward
 
-    def closed_loop_hooks(self, *, plant: bool = False, controller: bool = True, sample_period=None) -> dict:
+    def closed_loop_hooks(self, *, plant: bool = False, controller: bool = True, sample_period=None,
+                          rigid_body: bool = True) -> dict:
         """Fields of :class:`robust_drake.diagram.ClosedLoopConfig` that put the whole model into a
         closed loop (what ``ClosedLoopConfig(model=..., plant_model=...)`` uses):
 
@@ -277,12 +278,14 @@ class IdentifiedModel:
           effects as their blocks, fed the measured q and estimated v, their force cancelled in
           the command) and ``not_compensated`` ({kind: reason}).
 
-        The delay line samples at ``sample_period`` (None: the loop's period)."""
+        The delay line samples at ``sample_period`` (None: the loop's period); ``rigid_body=False``
+        leaves the rigid-body setup out (a caller that sets the inertias itself, e.g. a plant drawn
+        from the set: its setup first, then these)."""
         out: dict = {}
         if plant:
             out["plant_friction"] = {"coulomb": np.asarray(self.coulomb, float).tolist(),
                                      "viscous": np.asarray(self.viscous, float).tolist()}
-            out["plant_setup"] = [self._rigid_body_setup()] + [
+            out["plant_setup"] = ([self._rigid_body_setup()] if rigid_body else []) + [
                 (lambda p, c, e=eff, prm=prm: e.apply_to_context(p, c, prm))
                 for eff, prm in self.effect_terms() if eff.modifies_plant]
             out["effects"] = [(lambda ctx, e=eff, prm=prm: e.block(ctx.n, prm, sample_period=sample_period or ctx.period))
