@@ -72,10 +72,8 @@ def run(args) -> int:
         from robust_drake.systems.flexibility import d2r2_flexibility
 
         flex = d2r2_flexibility(args.load, robot=args.robot)
-    design = None
-    if args.design:
-        cfg, design = _design_config(args)
-    else:
+    cfg, design = _design_config(args) if args.design else (None, None)
+    if cfg is None:
         cfg = ClosedLoopConfig(robot=args.robot, load=args.load, controller=args.controller,
                                trajectory=args.trajectory, trajectory_params=_key_values(args.trajectory_param,
                                                                                          "--trajectory-param"),
@@ -124,11 +122,7 @@ def run(args) -> int:
     rho = getattr(loop.controller, "rho", None)
     out.update(uncertainty=unc, rho=rho if unc is not None else None)
     out["reference"] = dict(loop.reference.params)  # with the offset the joint limits chose
-    if args.model or args.plant_model:
-        out.update(controller_model=args.model, plant_model=args.plant_model,
-                   not_compensated=dict(loop.not_compensated or getattr(loop.controller, "not_compensated", {}) or {}))
-    if design is not None:
-        out.update(design_file=args.design, design_nominal=design.get("nominal"))
+    out.update(_model_output(args, loop, design))
     if plot:
         out["plots"] = [plot] + ([str(plots / "task_path.png")] if res.link_lengths else [])
     if args.json:
@@ -138,6 +132,17 @@ def run(args) -> int:
     if vis is not None and sys.stdin.isatty():
         input("Meshcat: replay the recording in the browser; press Enter to stop the server ")
     return 1 if res.diverged else 0
+
+
+def _model_output(args, loop, design) -> dict:
+    """The identified models and the design file a run used (for --json)."""
+    out = {}
+    if args.model or args.plant_model:
+        out.update(controller_model=args.model, plant_model=args.plant_model,
+                   not_compensated=dict(loop.not_compensated or getattr(loop.controller, "not_compensated", {}) or {}))
+    if design is not None:
+        out.update(design_file=args.design, design_nominal=design.get("nominal"))
+    return out
 
 
 def _design_config(args):

@@ -49,7 +49,33 @@ class IdentifiedEffect:
 
 @dataclass
 class IdentifiedModel:
-    """Rigid-body base parameters + Coulomb/viscous friction + chosen effects of one arm."""
+    """Rigid-body base parameters + Coulomb/viscous friction + chosen effects of one arm: the
+    product of identification (``rd.identify``, ``rd.repair(...).model``) that control takes
+    (``ClosedLoopConfig(model=..., plant_model=...)``, ``rd.control``).
+
+    Parameters
+    ----------
+    robot : str
+        Robot name or URDF path the base parameters belong to.
+    joint_names : list of str
+        The URDF's moving joints, in velocity order (joints are numbered from 0).
+    base_names : list of str
+        Names of the base parameters (``InverseDynamicsRegressor.base_names``).
+    base_values : numpy.ndarray
+        (p,) identified base parameters [SI: kg m, kg m^2, ...].
+    base_covariance : numpy.ndarray or None
+        (p, p) covariance of the estimate (its confidence set: :meth:`confidence_set`).
+    coulomb : numpy.ndarray
+        (n,) Coulomb friction fc_j [N m].
+    viscous : numpy.ndarray
+        (n,) viscous friction fv_j [N m s/rad].
+    effects : list of IdentifiedEffect
+        The chosen effects (kind, joint, parameters, coefficients).
+    estimator : str
+        ``"least_squares"`` or ``"instrumental_variables"``.
+    data : dict
+        Summary of the fit data (samples, joints, dt, filter, covariance kind, ...).
+    """
 
     robot: str
     joint_names: list[str]
@@ -288,11 +314,11 @@ class IdentifiedModel:
             out["plant_setup"] = ([self._rigid_body_setup()] if rigid_body else []) + [
                 (lambda p, c, e=eff, prm=prm: e.apply_to_context(p, c, prm))
                 for eff, prm in self.effect_terms() if eff.modifies_plant]
-            out["effects"] = [(lambda ctx, e=eff, prm=prm: e.block(ctx.n, prm, sample_period=sample_period or ctx.period))
+            out["effects"] = [(lambda ctx, e=eff, prm=prm: e.block(ctx.n, prm, sample_period=sample_period or getattr(ctx, "period", 1e-3)))
                               for eff, prm in self.effect_terms() if not eff.modifies_plant]
         if controller:
             ff = self.feedforward()
-            comp = [(lambda ctx, e=eff, prm=prm: e.block(ctx.n, prm, sample_period=sample_period or ctx.period))
+            comp = [(lambda ctx, e=eff, prm=prm: e.block(ctx.n, prm, sample_period=sample_period or getattr(ctx, "period", 1e-3)))
                     for eff, prm in self.effect_terms() if compensation_role(eff) == "block"]
             out.update(controller_params={"model": self}, feedforward=[ff], compensation=comp,
                        not_compensated={k: r for k, r in ff.reasons.items() if r not in ("block",)})

@@ -12,8 +12,15 @@ from collections.abc import Mapping
 
 
 class RepairResult(Mapping):
-    """A repair's outcome. ``report``: the dict of ``report.json`` (the same object the pipeline
-    built); ``out``: the folder it was written to (None: not written)."""
+    """A repair's outcome, a read-only mapping over its report.
+
+    Parameters
+    ----------
+    report : dict
+        The dictionary of ``report.json`` (the same object the pipeline built).
+    out : str, optional
+        The folder the report was written to (None: not written).
+    """
 
     def __init__(self, report: dict, out: str | None = None):
         self._report = report
