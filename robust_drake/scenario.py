@@ -161,7 +161,10 @@ class Scenario:
 
     @classmethod
     def from_dict(cls, d: dict) -> "Scenario":
+        """A scenario from plain data; a ClosedLoopConfig field that is no scenario field
+        (``torque_limit``, ``model``, ``metrics_skip``, ...) is an override too (into ``extra``)."""
         known = {f.name for f in fields(cls)}
+        d = _overrides_into_extra(d, known)
         unknown = set(d) - known
         if unknown:
             raise RobustDrakeError(
@@ -206,6 +209,27 @@ class Scenario:
         d["extra"] = {k: v for k, v in d["extra"].items()
                       if k not in ("initial_q", "metrics_skip", "metrics_dt", "plant_setup")}
         return json.dumps(d, sort_keys=True, separators=(",", ":"))
+
+
+def config_only_fields() -> set:
+    """ClosedLoopConfig fields that are not Scenario fields (given to a scenario via ``extra``)."""
+    from robust_drake.diagram import ClosedLoopConfig
+
+    return {f.name for f in fields(ClosedLoopConfig)} - {f.name for f in fields(Scenario)} - _NOT_COPIED
+
+
+def _overrides_into_extra(d: dict, known: set) -> dict:
+    """``d`` with its ClosedLoopConfig-only keys moved into ``extra`` (a key given both ways is refused)."""
+    moved = {k: d[k] for k in set(d) - known if k in config_only_fields()}
+    if not moved:
+        return d
+    out = {k: v for k, v in d.items() if k not in moved}
+    extra = dict(out.get("extra") or {})
+    twice = sorted(set(extra) & set(moved))
+    if twice:
+        raise RobustDrakeError(f"{twice} given both as a field and in 'extra'")
+    out["extra"] = {**extra, **moved}
+    return out
 
 
 def _plant_setup_callable(entry):
@@ -298,6 +322,9 @@ def expand_product(spec: dict) -> list[Scenario]:
             axes.append(_choice_entries(field_name, value))
         elif key in scenario_fields:
             defaults[key] = value
+        elif key in config_only_fields():  # a ClosedLoopConfig override for every scenario
+            defaults.setdefault("extra", {})
+            defaults["extra"] = {**defaults["extra"], key: value}
         else:
             raise RobustDrakeError(
                 f"spec: unknown key {key!r}; product keys: {sorted(PRODUCT_KEYS)}, "
@@ -428,7 +455,7 @@ def load_spec(path: str | os.PathLike) -> tuple[list[Scenario], dict]:
             raise RobustDrakeError(f"{path}: expected a mapping or a list of scenarios")
         if "scenarios" in doc:
             defaults = {k: v for k, v in doc.items() if k != "scenarios"}
-            bad = set(defaults) - {f.name for f in fields(Scenario)}
+            bad = set(defaults) - {f.name for f in fields(Scenario)} - config_only_fields()
             if bad:
                 raise RobustDrakeError(
                     f"{path}: with a 'scenarios' list, the other keys must be scenario fields "

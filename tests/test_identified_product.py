@@ -253,3 +253,21 @@ def test_panda_same_rate_and_torque_limits_through_simulate_and_run_batch():
     assert np.abs(res.u[:, 0]).max() > 1.5 * lim[0]
     assert np.all(np.abs(res.tau) <= np.asarray(lim) + 1e-12) and np.abs(res.tau[:, 0]).max() == lim[0]
     assert df["tau_peak1"].iloc[0] == lim[0]
+
+
+def test_batch_scenarios_are_overrides_of_the_closed_loop_config(tmp_path):
+    """A batch spec may set any ClosedLoopConfig field at the top level or per scenario (here the
+    torque limit and the metrics window); what it leaves out is ClosedLoopConfig's default (the
+    robot description's rate)."""
+    from robust_drake.scenario import Scenario, load_spec
+
+    spec = tmp_path / "spec.yaml"
+    spec.write_text("robot: panda\ncontroller: pd\ntrajectory: sine\nduration: 0.1\ntorque_limit: [50, 50, 50, 50, 10, 10, 10]\n"
+                    "scenarios:\n  - {metrics_skip: 0.05}\n  - {load: none}\n")
+    scenarios, _ = load_spec(spec)
+    configs = [s.to_config().resolved() for s in scenarios]
+    assert [c.torque_limit for c in configs] == [[50, 50, 50, 50, 10, 10, 10]] * 2
+    assert [c.metrics_skip for c in configs] == [0.05, 0.0] and all(c.rate == 1000.0 for c in configs)
+    assert Scenario.from_dict({"robot": "panda", "encoder_resolution": 1e-6}).extra == {"encoder_resolution": 1e-6}
+    with pytest.raises(RobustDrakeError, match="both"):
+        Scenario.from_dict({"torque_limit": [1.0, 1.0], "extra": {"torque_limit": [2.0, 2.0]}})
