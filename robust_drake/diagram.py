@@ -580,7 +580,7 @@ class ClosedLoop:
         if c.plant_model is not None:
             hooks = c.plant_model.closed_loop_hooks(plant=True, controller=False)
             self.model_plant_setup, self.model_effects = hooks["plant_setup"], hooks["effects"]
-        if c.model is not None:
+        if c.model is not None and "model" not in c.controller_params:  # else the factory compensates its model
             hooks = c.model.closed_loop_hooks(controller=True)
             own = ("model", "theta0", "P", "ellipsoid", "rho", "regressor")
             if (isinstance(c.controller, str) and c.controller in MODEL_CONTROLLERS

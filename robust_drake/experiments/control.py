@@ -153,8 +153,9 @@ def _plant_arm(model, friction: bool):
 
 
 def design(model, cfg: ControlConfig, reg, rate: float) -> dict:
-    """The controller of ``cfg.controller`` from the model and its set: ``params`` (explicit
-    controller_params: theta0, P or rho, epsilon, K, Lambda), ``rho_epsilon`` (the bound's rho
+    """The controller of ``cfg.controller`` from the model and its set: ``params`` (its
+    controller_params: CI theta0, P, epsilon, K, Lambda; SP1/SP2 the model (JSON) and alpha,
+    epsilon, K, Lambda), ``rho_epsilon`` (the bound's rho
     epsilon), ``K``, ``Lambda``, ``epsilon_rule``, the set (``theta0``, ``P``), ``q_ref``."""
     from robust_drake.systems.controllers.spong import closed_form_for
 
@@ -170,10 +171,12 @@ def design(model, cfg: ControlConfig, reg, rate: float) -> dict:
         if closed_form_for(model.robot) is not None:
             raise RobustDrakeError(f"{model.robot}: SP1/SP2 use the robot's closed-form design, not the identified "
                                    "base parameters; use --controller ci")
-        ctrl = _controller(dctx, CONTROLLERS[cfg.controller], {"model": model, "alpha": cfg.alpha})
+        ctrl_model = _plant_arm(model, cfg.friction)  # friction=False: nothing to compensate
+        ctrl = _controller(dctx, CONTROLLERS[cfg.controller], {"model": ctrl_model, "alpha": cfg.alpha})
         K, Lam = np.asarray(ctrl.K, float), np.asarray(ctrl.Lambda, float)
         rho, eps = ctrl.rho, ctrl.epsilon
-        params = {"theta0": np.asarray(ctrl.theta0, float).tolist(), "rho": rho, "epsilon": eps}
+        # reloaded through model= (theta0 and rho from the same set, the model's compensation)
+        params = {"model": ctrl_model.to_json(), "alpha": cfg.alpha, "epsilon": eps}
         rho_eps = float(rho * eps) if np.ndim(rho) == 0 else float(np.sum(np.asarray(rho) * np.asarray(eps)))
         rule = dict(ctrl.uncertainty.get("epsilon_rule") or {})
         q_ref = _reference_q(dctx, reg.n)
@@ -206,7 +209,8 @@ def nominal_config(model, cfg: ControlConfig, params: dict, rate: float):
     return ClosedLoopConfig(robot=str(model.robot), controller=CONTROLLERS[cfg.controller],
                             controller_params=dict(params), trajectory="sine", rate=rate,
                             duration=cfg.track_duration, observer="exact", encoder_resolution=None,
-                            torque_limit=None, plant_model=arm, model=model if cfg.friction else None)
+                            torque_limit=None, plant_model=arm,
+                            model=model if cfg.friction and "model" not in params else None)
 
 
 def _draw_config(nominal, arm, draw):
@@ -320,8 +324,12 @@ def _result(m, cfg, des, rate, nominal, loop, nom, draws, rejected, region_info,
     unc = {"kind": "ellipsoid", "source": f"{1 - cfg.alpha:g} confidence set of the identified base parameters "
            f"({m.estimator}, {covariance_kind(m)} covariance)", "parameters": list(m.base_names),
            "theta0": np.asarray(des["theta0"], float).tolist(), "P": np.asarray(P, float).tolist()}
+    shown = {k: v for k, v in des["params"].items() if k != "model"}  # the model is in closed_loop
+    ctrl = loop.controller
+    if "model" in des["params"]:  # SP1/SP2: what the factory took from the model
+        shown.update(theta0=np.asarray(ctrl.theta0, float).tolist(), rho=ctrl.rho)
     design_rec = {"controller": cfg.controller, "registry_controller": CONTROLLERS[cfg.controller],
-                  "robot": str(m.robot), "rate": rate, "alpha": cfg.alpha, **des["params"],
+                  "robot": str(m.robot), "rate": rate, "alpha": cfg.alpha, **shown,
                   "rho_epsilon": des["rho_epsilon"], "set": unc, "friction_compensated": bool(cfg.friction),
                   "not_compensated": dict(getattr(loop, "not_compensated", {}) or
                                           getattr(loop.controller, "not_compensated", {}) or {})}
