@@ -61,6 +61,11 @@ class IdentifiedModel:
     effects: list[IdentifiedEffect] = field(default_factory=list)
     estimator: str = "least_squares"
     data: dict = field(default_factory=dict)  # summary of the fit data (samples, filter, ranges)
+    #: the repair's physically consistent fit of the same model (``identification.consistency``):
+    #: {"solver", "bodies": {link: {"mass", "com", "inertia_origin"}}, "extras": {"Ia_<joint>": ...},
+    #: "base_values", "coulomb", "viscous", "effect_coefficients", "min_pseudo_inertia_eig"};
+    #: None when it was not computed (``model_repair.export`` writes the URDF from it)
+    consistent: dict | None = None
 
     @property
     def n(self) -> int:
@@ -78,6 +83,7 @@ class IdentifiedModel:
             "effects": [{"kind": e.kind, "joint": e.joint, "parameters": dict(e.parameters),
                          "coefficients": [float(c) for c in e.coefficients]} for e in self.effects],
             "estimator": self.estimator, "data": dict(self.data),
+            **({"consistent": self.consistent} if self.consistent is not None else {}),
         }
 
     @classmethod
@@ -92,7 +98,8 @@ class IdentifiedModel:
                        viscous=np.asarray(d["friction"]["viscous"], float),
                        effects=[IdentifiedEffect(e["kind"], e["joint"], dict(e["parameters"]),
                                                  list(e["coefficients"])) for e in d.get("effects", [])],
-                       estimator=d.get("estimator", "least_squares"), data=dict(d.get("data") or {}))
+                       estimator=d.get("estimator", "least_squares"), data=dict(d.get("data") or {}),
+                       consistent=d.get("consistent"))
         except (KeyError, TypeError) as exc:
             raise RobustDrakeError(f"not an identified model (missing {exc})") from None
 
@@ -106,6 +113,20 @@ class IdentifiedModel:
         if key not in report:
             raise RobustDrakeError(f"the repair report has no {key!r} (written by an older version): repair again")
         return cls.from_json(report[key])
+
+    # ------------------------------------------------------------------ export (model_repair/export.py)
+    def consistent_model(self) -> "IdentifiedModel":
+        """This model with the physically consistent fit's values (``model_repair.export``)."""
+        from robust_drake.model_repair.export import consistent_model
+
+        return consistent_model(self)
+
+    def to_urdf(self, path) -> dict:
+        """Write the URDF of the physically consistent identified arm and the effects a URDF cannot
+        hold in a sidecar YAML (``model_repair.export.to_urdf``); returns the written paths."""
+        from robust_drake.model_repair.export import to_urdf
+
+        return to_urdf(self, path)
 
     # ------------------------------------------------------------------ torques
     def effect_terms(self) -> list:
