@@ -472,7 +472,8 @@ def make_reference(arm, name: str, **params) -> Reference:
 def write_trajectory_csv(path, t, q, qd, qdd) -> str:
     """Write a joint reference as CSV: columns ``t, q1..qn, qd1..qdn, qdd1..qddn`` (s, rad,
     rad/s, rad/s^2; joints numbered from 1 as in the canonical log CSV of
-    ``identification.data``), one row per sample, 17 significant digits.  Returns the path."""
+    ``identification.data``), one row per sample, each number as the shortest text that reads
+    back the same double.  Returns the path."""
     import os
 
     import pandas as pd
@@ -484,7 +485,7 @@ def write_trajectory_csv(path, t, q, qd, qdd) -> str:
         for j in range(n):
             cols[f"{name}{j + 1}"] = arr[:, j]
     os.makedirs(os.path.dirname(os.path.abspath(str(path))) or ".", exist_ok=True)
-    pd.DataFrame(cols).to_csv(path, index=False, float_format="%.17g")
+    pd.DataFrame(cols).to_csv(path, index=False)  # shortest repr that reads back the same doubles
     return str(path)
 
 

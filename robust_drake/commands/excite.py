@@ -116,7 +116,7 @@ def _print_text(out: dict) -> None:
         f = lambda key: m[key]["fraction_of_limit"][j] if m[key].get("fraction_of_limit") else None  # noqa: E731
         rows.append([j, name, min(m["position"]["min_to_lower"][j], m["position"]["min_to_upper"][j]),
                      f("velocity"), f("acceleration"), f("torque")])
-    print(format_table(rows, ["joint", "name", "position margin rad", "velocity/limit", "acceleration/limit",
+    print(format_table(rows, ["joint", "name", "to position box rad", "velocity/limit", "acceleration/limit",
                               "torque/limit"]))
     d = m["distance"]
     print("collisions: " + (f"smallest distance {d['min']:.4g} m ({d['pair']}) over {d['collision_pairs']} pairs"
