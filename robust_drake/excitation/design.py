@@ -71,6 +71,8 @@ FREE_EXCURSION = 1.0
 KNOTS_PER_HARMONIC = 8
 #: position / velocity / acceleration grid per period and harmonic for the linear limit rows
 LIMIT_POINTS_PER_HARMONIC = 24
+#: grid [Hz] of the reported information matrices (scaled to the log's rate)
+INFO_RATE = 250.0
 #: signed-distance check points per period and harmonic after the solve
 DISTANCE_CHECK_POINTS_PER_HARMONIC = 24
 
@@ -610,7 +612,7 @@ def design_excitation(config: ExcitationConfig | None = None, progress=None, **f
     # the start must respect the torque limits: shrink the random motion until it does
     traj0 = FourierTrajectory.from_vector(x0, n, prob.period)
     for _ in range(30):
-        chk = check_limits(traj0, prob, model, _NoCollision(), rate)
+        chk = check_limits(traj0, prob, model, _NoCollision(), _check_rate(prob))
         if chk["ok"]:
             break
         traj0 = scaled(traj0, prob.q_start, 0.7)
@@ -626,7 +628,7 @@ def design_excitation(config: ExcitationConfig | None = None, progress=None, **f
             x, res, _ = _solve(ps, ev, col, xs, cfg.max_iterations)
             ev._key = None
             trial = FourierTrajectory.from_vector(x, n, prob.period)
-            tight = _tightened(ps, prob, trial, model, rate)
+            tight = _tightened(ps, prob, trial, model, _check_rate(prob))
             if tight is None or rounds >= MAX_REFINEMENTS:
                 break
             ps, xs, rounds = tight, x, rounds + 1
@@ -643,9 +645,11 @@ def design_excitation(config: ExcitationConfig | None = None, progress=None, **f
     scale_applied = 1.0
     chk = check_limits(traj, prob, model, col, rate)
     while not chk["ok"] and scale_applied > 0.05:
-        scale_applied *= 0.97
+        scale_applied *= 0.99
         traj_s = scaled(traj, prob.q_start, scale_applied)
-        chk = check_limits(traj_s, prob, model, col, rate)
+        chk = check_limits(traj_s, prob, model, col, _check_rate(prob))
+        if chk["ok"]:  # confirmed on the robot's rate
+            chk = check_limits(traj_s, prob, model, col, rate)
     if not chk["ok"]:
         raise RobustDrakeError(f"no excitation of {cfg.robot!r} satisfies the limits on the dense grid (solver "
                                f"{info['status']}); relax the limits, the start pose or min_distance")
@@ -662,6 +666,15 @@ def design_excitation(config: ExcitationConfig | None = None, progress=None, **f
 class _NoCollision:
     pairs = 0
     min_distance = None
+
+
+#: points per period and harmonic of the intermediate dense-grid checks (starting point,
+#: refinements); the final check runs at the robot's rate
+CHECK_POINTS_PER_HARMONIC = 128
+
+
+def _check_rate(prob) -> float:
+    return CHECK_POINTS_PER_HARMONIC * prob.harmonics / prob.period
 
 
 #: re-solves with bounds tightened by what the dense grid found between the knots
@@ -709,7 +722,12 @@ def _result(cfg, prob, model, traj, rate, chk, info, scale_applied, dropped, col
     # exactly at rest at q_start at every period's end (the series gives it to ~1e-16)
     ends = np.flatnonzero(np.abs(t / prob.period - np.round(t / prob.period)) < 1e-9)
     q[ends], qd[ends], qdd[ends] = prob.q_start, 0.0, 0.0
-    tau = model.torque(q, qd, qdd)
+    P = prob.period * rate  # samples per period: the torque repeats with the motion
+    if abs(P - round(P)) < 1e-9 and round(P) < len(t):
+        P = int(round(P))
+        tau = model.torque(q[:P], qd[:P], qdd[:P])[np.arange(len(t)) % P]
+    else:
+        tau = model.torque(q, qd, qdd)
     sigma = cfg.noise_std
     if sigma is None:
         try:
@@ -717,8 +735,13 @@ def _result(cfg, prob, model, traj, rate, chk, info, scale_applied, dropped, col
         except RobustDrakeError:
             sigma = 0.005
     rate_log = rate
-    F, A = experiment_information(model, traj, cfg.duration, rate_log)
-    F0, A0 = experiment_information(model, default_reference(cfg.robot, cfg.seed), cfg.duration, rate_log)
+    # F grows with the samples for a motion well inside the band: computed on an INFO_RATE grid and
+    # scaled to the log's rate (the rate changes the predicted std by sqrt(rate / INFO_RATE), not
+    # the comparison with the default)
+    info_rate = min(rate_log, INFO_RATE)
+    F, A = experiment_information(model, traj, cfg.duration, info_rate)
+    F0, A0 = experiment_information(model, default_reference(cfg.robot, cfg.seed), cfg.duration, info_rate)
+    F, F0 = F * (rate_log / info_rate), F0 * (rate_log / info_rate)
     sd = predicted_std(F / sigma ** 2)
     sd0 = predicted_std(F0 / sigma ** 2)
     ratio = sd0 / sd
