@@ -32,7 +32,6 @@ import tempfile
 # %matplotlib inline
 import robust_drake as rd
 from robust_drake.experiments.logs_to_control import excitation_for
-from robust_drake.model_repair.export import load_export
 from robust_drake.model_repair.model import IdentifiedModel
 from robust_drake.model_repair.simulated import simulate_experiment
 
@@ -77,7 +76,7 @@ rd.repair_figure(report)
 # %%
 model = IdentifiedModel.from_report(report)
 files = model.to_urdf(os.path.join(out, "c1_identified.urdf"))
-back = load_export(files["urdf"])
+back = IdentifiedModel.from_export(files["urdf"])
 print(files["urdf"], "| sidecar effects:", files["effects_in_sidecar"], "| notes:", files["notes"])
 print("round trip:", [e.kind for e in back.effects], back.base_names[:3], "...")
 

@@ -14,11 +14,12 @@ import pytest
 
 from robust_drake import cli
 from robust_drake.errors import RobustDrakeError
+from robust_drake.model_repair.model import IdentifiedModel
 
 
 def _model_from_urdf(robot, viscous=(0.02, -0.01), coulomb=(0.1, 0.05), effects=()):
     """An IdentifiedModel whose consistent fit is the URDF's own arm (every link, rotor inertias)."""
-    from robust_drake.model_repair.model import IdentifiedModel
+
     from robust_drake.regressor import InverseDynamicsRegressor
 
     reg = InverseDynamicsRegressor.from_robot(robot)
@@ -49,7 +50,6 @@ def _states(n=40, seed=0):
 def test_export_of_a_known_arm_is_that_arm_in_drake_and_round_trips(tmp_path):
     from pydrake.multibody.tree import MultibodyForces
 
-    from robust_drake.model_repair.export import load_export
     from robust_drake.model_repair.model import IdentifiedEffect
     from robust_drake.models import make_plant
 
@@ -78,9 +78,9 @@ def test_export_of_a_known_arm_is_that_arm_in_drake_and_round_trips(tmp_path):
     reg = InverseDynamicsRegressor.from_robot("dfki_double_pendulum_c1")
     expect = reg.evaluate(q, qd, qdd) @ cm.base_values + np.maximum(cm.viscous, 0) * qd + 0.004 * qdd * [0, 1]
     assert np.abs(np.asarray(tau_d) - expect).max() < 1e-9
-    back = load_export(out["urdf"])
+    back = IdentifiedModel.from_export(out["urdf"])
     assert np.abs(back.predict_torque(q, qd, qdd) - cm.predict_torque(q, qd, qdd)).max() < 1e-9
-    assert load_export(out["sidecar"]).robot == back.robot
+    assert IdentifiedModel.from_export(out["sidecar"]).robot == back.robot
 
 
 def test_export_refuses_models_without_a_consistent_body(tmp_path):
@@ -99,7 +99,7 @@ def test_export_refuses_models_without_a_consistent_body(tmp_path):
 
 
 def test_identified_model_json_carries_the_consistent_fit_and_stays_backward_compatible():
-    from robust_drake.model_repair.model import IdentifiedModel
+
 
     m = _model_from_urdf("dfki_double_pendulum_c1")
     d = m.to_json()
@@ -110,7 +110,6 @@ def test_identified_model_json_carries_the_consistent_fit_and_stays_backward_com
 
 @pytest.mark.slow
 def test_repair_export_urdf_on_the_command_line(tmp_path, capsys):
-    from robust_drake.model_repair.export import load_export
     from robust_drake.model_repair.simulated import hidden_effect_case
 
     fit, val, truth = hidden_effect_case("position_dependent", seed=0, out_dir=str(tmp_path / "data"), duration=8.0)
@@ -120,12 +119,12 @@ def test_repair_export_urdf_on_the_command_line(tmp_path, capsys):
     assert cli.main(args + ["--json"]) == 0
     rep = json.loads(capsys.readouterr().out)
     assert rep["export"]["urdf"] == str(urdf) and urdf.is_file()
-    model = load_export(urdf)
+    model = IdentifiedModel.from_export(urdf)
     assert [e.kind for e in model.effects] == [e["kind"] for e in rep["model"]["effects"]
                                                if e["kind"] != "rotor_inertia"]
     # the export reproduces the repair's physically consistent prediction on the validation log
     from robust_drake.identification.data import load
-    from robust_drake.model_repair.model import IdentifiedModel
+
 
     data = load(val, robot=truth["robot"], quiet=True)
     cm = IdentifiedModel.from_report(rep).consistent_model()

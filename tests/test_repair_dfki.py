@@ -81,7 +81,6 @@ def test_c1_export_urdf_is_the_consistent_model_in_drake(c1_report, tmp_path):
     from pydrake.multibody.tree import MultibodyForces
 
     from robust_drake.identification.data import load
-    from robust_drake.model_repair.export import load_export
     from robust_drake.model_repair.model import IdentifiedModel
     from robust_drake.models import make_plant
     from robust_drake.regressor import InverseDynamicsRegressor
@@ -102,7 +101,7 @@ def test_c1_export_urdf_is_the_consistent_model_in_drake(c1_report, tmp_path):
         tau = plant.CalcInverseDynamics(ctx, val.qdd[k], f) - plant.CalcGravityGeneralizedForces(ctx)
         err = max(err, float(np.abs(tau - rigid[k]).max()))
     assert err < 1e-9, err
-    back = load_export(out["urdf"])
+    back = IdentifiedModel.from_export(out["urdf"])
     full = cm.predict_torque(val.q, val.qd, val.qdd)
     assert np.abs(back.predict_torque(val.q, val.qd, val.qdd) - full).max() < 1e-9
     assert [e.kind for e in back.effects] == [e.kind for e in cm.effects]  # presliding friction kept

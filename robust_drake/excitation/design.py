@@ -593,18 +593,8 @@ def design_excitation(config: ExcitationConfig | None = None, progress=None, **f
     rng = np.random.default_rng(cfg.seed)
     half = 0.45 * np.minimum(prob.q_hi - prob.q_start, prob.q_start - prob.q_lo)
     x0 = random_feasible(n, prob.period, prob.harmonics, prob.q_start, np.maximum(half, 1e-3), rng)
+    model, dropped = _drop_span_effects(model, reg, effects, pf, prob, x0, log)
     ev = _Evaluator(model, prob, KNOTS_PER_HARMONIC * prob.harmonics)
-    dropped = []
-    if effects:  # effect columns inside the rigid-body span: no motion identifies them
-        A0 = model.columns(*ev.states(x0))
-        dep = dependent_columns(A0, model.p_base + 2 * n)
-        if dep:
-            dropped = [model.names[c] for c in dep]
-            keep = [e for e in effects if not any(nm.startswith(e.name + ":") for nm in dropped)]
-            log(f"excite: {', '.join(dropped)} lie in the span of the base parameters (no motion tells them apart); "
-                "left out of the information")
-            model = InformationModel(reg, keep, pf.get("coulomb"), pf.get("viscous"))
-            ev = _Evaluator(model, prob, KNOTS_PER_HARMONIC * prob.harmonics)
     col = _Collision(cfg.robot, cfg.min_distance, cfg.collision)
     log(f"excite: {cfg.robot}, {n} joints, period {prob.period:g} s x {round(cfg.duration / prob.period)}, "
         f"{prob.harmonics} harmonics (<= {prob.harmonics / prob.period:.3g} Hz), {model.p} parameters, "
@@ -612,8 +602,7 @@ def design_excitation(config: ExcitationConfig | None = None, progress=None, **f
     # the start must respect the torque limits: shrink the random motion until it does
     traj0 = FourierTrajectory.from_vector(x0, n, prob.period)
     for _ in range(30):
-        chk = check_limits(traj0, prob, model, _NoCollision(), _check_rate(prob))
-        if chk["ok"]:
+        if check_limits(traj0, prob, model, _NoCollision(), _check_rate(prob))["ok"]:
             break
         traj0 = scaled(traj0, prob.q_start, 0.7)
     ev.set_scale(traj0.vector())
@@ -622,45 +611,73 @@ def design_excitation(config: ExcitationConfig | None = None, progress=None, **f
         xs = traj0.vector() if s == 0 else scaled(FourierTrajectory.from_vector(
             random_feasible(n, prob.period, prob.harmonics, prob.q_start, np.maximum(half, 1e-3), rng), n,
             prob.period), prob.q_start, 0.5).vector()
-        t0 = time.perf_counter()
-        ps, rounds = prob, 0
-        while True:  # solve; tighten what the dense grid finds violated between the knots; again
-            x, res, _ = _solve(ps, ev, col, xs, cfg.max_iterations)
-            ev._key = None
-            trial = FourierTrajectory.from_vector(x, n, prob.period)
-            tight = _tightened(ps, prob, trial, model, _check_rate(prob))
-            if tight is None or rounds >= MAX_REFINEMENTS:
-                break
-            ps, xs, rounds = tight, x, rounds + 1
-        info = {"solver": res.get_solver_id().name(), "status": str(res.get_solution_result()),
-                "success": bool(res.is_success()), "seconds": time.perf_counter() - t0,
-                "evaluations": ev.evaluations, "refinements": rounds}
-        ev._key = None
-        traj = FourierTrajectory.from_vector(x, n, prob.period)
+        traj, info = _solve_refined(prob, ev, col, xs, model, cfg.max_iterations)
         log(f"excite: start {s}: {info['status']} after {info['seconds']:.1f} s ({info['evaluations']} evaluations)")
         if best is None or _logdet_of(model, traj, prob) > _logdet_of(model, best[0], prob):
             best = (traj, info)
     traj, info = best
-    # dense-grid check; scale the motion about q_start down until every limit holds there
-    scale_applied = 1.0
-    chk = check_limits(traj, prob, model, col, rate)
-    while not chk["ok"] and scale_applied > 0.05:
-        scale_applied *= 0.99
-        traj_s = scaled(traj, prob.q_start, scale_applied)
-        chk = check_limits(traj_s, prob, model, col, _check_rate(prob))
-        if chk["ok"]:  # confirmed on the robot's rate
-            chk = check_limits(traj_s, prob, model, col, rate)
-    if not chk["ok"]:
-        raise RobustDrakeError(f"no excitation of {cfg.robot!r} satisfies the limits on the dense grid (solver "
-                               f"{info['status']}); relax the limits, the start pose or min_distance")
+    traj, chk, scale_applied = _checked(traj, prob, model, col, rate, cfg.robot, info)
     if scale_applied < 1.0:
-        traj = scaled(traj, prob.q_start, scale_applied)
         log(f"excite: motion scaled by {scale_applied:.3f} so every limit holds on the {rate:g} Hz grid")
     result = _result(cfg, prob, model, traj, rate, chk, info, scale_applied, dropped, col)
     result.report["seconds"] = time.perf_counter() - t_start
     log(f"excite: log det {result.report['log_det']:.2f} (default {result.report['default']['log_det']:.2f}), "
         f"median std ratio {result.report['median_std_ratio']:.3g}, {result.report['seconds']:.1f} s")
     return result
+
+
+def _drop_span_effects(model, reg, effects, pf, prob, x0, log):
+    """(model, dropped names): effect columns inside the rigid-body span (no motion identifies
+    them) left out of the information."""
+    if not effects:
+        return model, []
+    tk = np.arange(KNOTS_PER_HARMONIC * prob.harmonics) * prob.period / (KNOTS_PER_HARMONIC * prob.harmonics)
+    A0 = model.columns(*FourierTrajectory.from_vector(x0, prob.n, prob.period)(tk))
+    dep = dependent_columns(A0, model.p_base + 2 * prob.n)
+    if not dep:
+        return model, []
+    dropped = [model.names[c] for c in dep]
+    keep = [e for e in effects if not any(nm.startswith(e.name + ":") for nm in dropped)]
+    log(f"excite: {', '.join(dropped)} lie in the span of the base parameters (no motion tells them apart); "
+        "left out of the information")
+    return InformationModel(reg, keep, pf.get("coulomb"), pf.get("viscous")), dropped
+
+
+def _solve_refined(prob, ev, col, xs, model, max_iterations):
+    """Solve; tighten the bounds by what the dense grid finds violated between the knots; solve
+    again from there (at most MAX_REFINEMENTS times).  Returns (trajectory, solver info)."""
+    t0 = time.perf_counter()
+    ps, rounds = prob, 0
+    while True:
+        x, res, _ = _solve(ps, ev, col, xs, max_iterations)
+        ev._key = None
+        trial = FourierTrajectory.from_vector(x, prob.n, prob.period)
+        tight = _tightened(ps, prob, trial, model, _check_rate(prob))
+        if tight is None or rounds >= MAX_REFINEMENTS:
+            break
+        ps, xs, rounds = tight, x, rounds + 1
+    info = {"solver": res.get_solver_id().name(), "status": str(res.get_solution_result()),
+            "success": bool(res.is_success()), "seconds": time.perf_counter() - t0,
+            "evaluations": ev.evaluations, "refinements": rounds}
+    return trial, info
+
+
+def _checked(traj, prob, model, col, rate, robot, info):
+    """(trajectory, margins, scale): the dense-grid check at the robot's rate; the motion about
+    q_start scaled down (1 % steps) until every limit holds there, or a one-line error."""
+    scale = 1.0
+    chk = check_limits(traj, prob, model, col, rate)
+    out = traj
+    while not chk["ok"] and scale > 0.05:
+        scale *= 0.99
+        out = scaled(traj, prob.q_start, scale)
+        chk = check_limits(out, prob, model, col, _check_rate(prob))
+        if chk["ok"]:  # confirmed on the robot's rate
+            chk = check_limits(out, prob, model, col, rate)
+    if not chk["ok"]:
+        raise RobustDrakeError(f"no excitation of {robot!r} satisfies the limits on the dense grid (solver "
+                               f"{info['status']}); relax the limits, the start pose or min_distance")
+    return out, chk, scale
 
 
 class _NoCollision:

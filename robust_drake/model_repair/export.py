@@ -16,7 +16,7 @@ What goes where (``to_urdf``):
   written as 0 (the sidecar keeps the fitted value);
 - the sidecar ``<stem>.identified.yaml``: Coulomb and viscous levels, every effect a URDF cannot
   hold (kind, joint, parameters, column coefficients in the repair's sign convention), the
-  estimator and data summary; :func:`load_export` reads the pair back as an ``IdentifiedModel``.
+  estimator and data summary; :func:`read_export` reads the pair back (``IdentifiedModel.from_export``).
 
 In this package's own regressor of the exported URDF the joint damping is a base parameter
 ``b_<joint>`` (``regressor.InverseDynamicsRegressor``), so the loaded model's ``viscous`` holds
@@ -62,7 +62,6 @@ def consistent_model(model):
     (``consistent["inflated"]`` [kg m^2] per link), and the base parameters are recomputed from
     those bodies (theta = K pi), so the URDF written and this model are the same arm.  Beyond
     that tolerance the model is refused."""
-    from robust_drake.model_repair.model import IdentifiedEffect, IdentifiedModel
     from robust_drake.regressor import InverseDynamicsRegressor
 
     c = model.consistent
@@ -101,15 +100,15 @@ def consistent_model(model):
     coefs = c.get("effect_coefficients") or [[] for _ in model.effects]
     for e, co in zip(model.effects, coefs):
         eff = e.effect(model.robot)
-        params = {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in eff.parameters(co).items()}
-        effs.append(IdentifiedEffect(e.kind, e.joint, params, [float(x) for x in co]))
+        params = _plain(eff.parameters(co))
+        effs.append({"kind": e.kind, "joint": e.joint, "parameters": params, "coefficients": [float(x) for x in co]})
     cons = {**copy.deepcopy(c), "bodies": bodies, "base_values": theta.tolist(), "inflated": inflated}
-    return IdentifiedModel(robot=model.robot, joint_names=list(model.joint_names), base_names=list(model.base_names),
-                           base_values=theta, base_covariance=None,
-                           coulomb=np.asarray(c["coulomb"], float), viscous=np.asarray(c["viscous"], float),
-                           effects=effs, estimator=f"physically consistent ({c.get('solver', '?')}, "
-                                                   f"from {model.estimator})",
-                           data=dict(model.data), consistent=cons)
+    d = model.to_json()  # the same class, rebuilt from JSON (no import of model.py: it imports this module)
+    d.update(base={"names": list(model.base_names), "values": theta.tolist(), "covariance": None},
+             friction={"coulomb": list(map(float, c["coulomb"])), "viscous": list(map(float, c["viscous"]))},
+             effects=effs, estimator=f"physically consistent ({c.get('solver', '?')}, from {model.estimator})",
+             consistent=cons)
+    return type(model).from_json(d)
 
 
 def body_inertial(body: dict) -> tuple[float, np.ndarray, np.ndarray]:
@@ -211,45 +210,8 @@ def to_urdf(model, path) -> dict:
     for name, (m, com, I_c) in bodies.items():
         _set_inertial(links[name], m, com, I_c)
     joints = {j.get("name"): j for j in root.findall("joint")}
-    notes = []
-    # reflected rotor inertia: the URDF's extras, plus a chosen rotor_inertia effect
-    reflected = {k[3:]: float(v) for k, v in (c.get("extras") or {}).items() if k.startswith("Ia_")}
-    sidecar_effects = []
-    for e in cm.effects:
-        if e.kind == "rotor_inertia":
-            vals = e.parameters["reflected_inertia"]
-            js = list(range(model.n)) if e.joint is None else [e.joint]
-            vals = list(vals) if isinstance(vals, (list, tuple)) else [vals] * len(js)
-            for j, v in zip(js, vals):
-                jn = model.joint_names[j]
-                reflected[jn] = reflected.get(jn, 0.0) + float(v)
-            continue
-        sidecar_effects.append(e)
-    for jn, Ia in reflected.items():
-        if jn not in joints:
-            raise RobustDrakeError(f"rotor inertia of joint {jn!r}: no such joint in {src}")
-        if Ia < 0:
-            raise RobustDrakeError(f"no physically consistent model: reflected rotor inertia of joint {jn!r} is {Ia:.4g} "
-                                   "kg m^2 < 0")
-        _, act = _actuator_of(root, jn)
-        G = _gear_ratio(act)
-        el = act.find(_ns("rotor_inertia"))
-        if el is None:
-            el = ET.SubElement(act, _ns("rotor_inertia"))
-        el.set("value", _r(Ia / (G * G)))
-    # friction: damping (Drake applies it) and friction (informative; Drake warns and ignores it)
-    damping = np.zeros(model.n)
-    for j, jn in enumerate(model.joint_names):
-        if jn not in joints:
-            raise RobustDrakeError(f"joint {jn!r} of the model is not in {src}")
-        fv, fc = float(cm.viscous[j]), float(cm.coulomb[j])
-        damping[j] = max(fv, 0.0)
-        if fv < 0 or fc < 0:
-            notes.append(f"joint {j} ({jn}): fitted {'viscous' if fv < 0 else 'Coulomb'} level "
-                         f"{fv if fv < 0 else fc:.4g} < 0 written as 0 in the URDF (kept in the sidecar)")
-        for old in joints[jn].findall("dynamics"):
-            joints[jn].remove(old)
-        ET.SubElement(joints[jn], "dynamics", damping=_r(damping[j]), friction=_r(max(fc, 0.0)))
+    sidecar_effects = _write_rotor_inertias(root, joints, cm, c, src)
+    damping, notes = _write_friction(joints, cm, src)
     root.insert(0, ET.Comment(
         f" exported by robust_drake from the identified model of {model.robot!r} ({cm.estimator}): link "
         "inertials of the physically consistent fit (inertia about the centre of mass), reflected rotor "
@@ -274,6 +236,53 @@ def to_urdf(model, path) -> dict:
             "notes": notes}
 
 
+def _write_rotor_inertias(root, joints, cm, c, src) -> list:
+    """drake:rotor_inertia = Ia / G^2 from the URDF's Ia extras plus a chosen rotor_inertia
+    effect; returns the effects left for the sidecar."""
+    reflected = {k[3:]: float(v) for k, v in (c.get("extras") or {}).items() if k.startswith("Ia_")}
+    sidecar_effects = []
+    for e in cm.effects:
+        if e.kind != "rotor_inertia":
+            sidecar_effects.append(e)
+            continue
+        vals = e.parameters["reflected_inertia"]
+        js = list(range(cm.n)) if e.joint is None else [e.joint]
+        vals = list(vals) if isinstance(vals, (list, tuple)) else [vals] * len(js)
+        for j, v in zip(js, vals):
+            jn = cm.joint_names[j]
+            reflected[jn] = reflected.get(jn, 0.0) + float(v)
+    for jn, Ia in reflected.items():
+        if jn not in joints:
+            raise RobustDrakeError(f"rotor inertia of joint {jn!r}: no such joint in {src}")
+        if Ia < 0:
+            raise RobustDrakeError(f"no physically consistent model: reflected rotor inertia of joint {jn!r} is {Ia:.4g} "
+                                   "kg m^2 < 0")
+        _, act = _actuator_of(root, jn)
+        G = _gear_ratio(act)
+        el = act.find(_ns("rotor_inertia"))
+        if el is None:
+            el = ET.SubElement(act, _ns("rotor_inertia"))
+        el.set("value", _r(Ia / (G * G)))
+    return sidecar_effects
+
+
+def _write_friction(joints, cm, src):
+    """<dynamics damping friction> per joint (negative levels written as 0); (damping, notes)."""
+    damping, notes = np.zeros(cm.n), []
+    for j, jn in enumerate(cm.joint_names):
+        if jn not in joints:
+            raise RobustDrakeError(f"joint {jn!r} of the model is not in {src}")
+        fv, fc = float(cm.viscous[j]), float(cm.coulomb[j])
+        damping[j] = max(fv, 0.0)
+        if fv < 0 or fc < 0:
+            notes.append(f"joint {j} ({jn}): fitted {'viscous' if fv < 0 else 'Coulomb'} level "
+                         f"{fv if fv < 0 else fc:.4g} < 0 written as 0 in the URDF (kept in the sidecar)")
+        for old in joints[jn].findall("dynamics"):
+            joints[jn].remove(old)
+        ET.SubElement(joints[jn], "dynamics", damping=_r(damping[j]), friction=_r(max(fc, 0.0)))
+    return damping, notes
+
+
 def _sidecar(urdf_path: str) -> str:
     stem = urdf_path[:-5] if urdf_path.lower().endswith(".urdf") else urdf_path
     return stem + SIDECAR_SUFFIX
@@ -291,19 +300,21 @@ def _plain(d):
     return d
 
 
-def load_export(path):
-    """The :class:`IdentifiedModel` of an export (the URDF or its sidecar): robot = the exported
-    URDF (absolute path), base parameters = its regressor's values (rigid bodies, rotor inertias,
-    joint damping), friction and effects from the sidecar (module docstring)."""
+def read_export(path) -> dict:
+    """The ``IdentifiedModel`` JSON (``IdentifiedModel.to_json`` form) of an export, from the URDF
+    or its sidecar: robot = the exported URDF (absolute path), base parameters = its regressor's
+    values (rigid bodies, rotor inertias, joint damping), friction and effects from the sidecar
+    (module docstring).  ``IdentifiedModel.from_export(path)`` turns it into the model."""
     import yaml
 
-    from robust_drake.model_repair.model import IdentifiedEffect, IdentifiedModel
     from robust_drake.regressor import InverseDynamicsRegressor
 
     path = str(path)
     if path.endswith(SIDECAR_SUFFIX):
         side_path = path
-        urdf = os.path.join(os.path.dirname(path), yaml.safe_load(open(path))["urdf"])
+        if not os.path.isfile(side_path):
+            raise RobustDrakeError(f"sidecar {side_path} not found")
+        urdf = os.path.join(os.path.dirname(path), str((yaml.safe_load(open(path)) or {}).get("urdf", "")))
     else:
         urdf, side_path = path, _sidecar(path)
     if not os.path.isfile(urdf):
@@ -318,9 +329,10 @@ def load_export(path):
     reg = InverseDynamicsRegressor.from_robot(urdf)
     fr = side["friction"]
     viscous = np.asarray(fr["viscous"], float) - np.asarray(fr["viscous_in_urdf_damping"], float)
-    effects = [IdentifiedEffect(e["kind"], e["joint"], dict(e["parameters"]), list(e["coefficients"]))
-               for e in side.get("effects") or []]
-    return IdentifiedModel(robot=urdf, joint_names=list(side["joint_names"]), base_names=list(reg.base_names),
-                           base_values=np.asarray(reg.base_parameters(), float), base_covariance=None,
-                           coulomb=np.asarray(fr["coulomb"], float), viscous=viscous, effects=effects,
-                           estimator=str(side.get("estimator", "exported")), data=dict(side.get("data") or {}))
+    return {"robot": urdf, "joint_names": list(side["joint_names"]),
+            "base": {"names": list(reg.base_names), "values": np.asarray(reg.base_parameters(), float).tolist(),
+                     "covariance": None},
+            "friction": {"coulomb": [float(x) for x in fr["coulomb"]], "viscous": viscous.tolist()},
+            "effects": [{"kind": e["kind"], "joint": e["joint"], "parameters": dict(e["parameters"]),
+                         "coefficients": list(e["coefficients"])} for e in side.get("effects") or []],
+            "estimator": str(side.get("estimator", "exported")), "data": dict(side.get("data") or {})}

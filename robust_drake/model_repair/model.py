@@ -121,6 +121,15 @@ class IdentifiedModel:
 
         return consistent_model(self)
 
+    @classmethod
+    def from_export(cls, path) -> "IdentifiedModel":
+        """The model of a ``to_urdf`` export (the URDF or its ``.identified.yaml`` sidecar):
+        robot = the exported URDF, its base parameters, friction and effects from the sidecar
+        (``model_repair.export.read_export``)."""
+        from robust_drake.model_repair.export import read_export
+
+        return cls.from_json(read_export(path))
+
     def to_urdf(self, path) -> dict:
         """Write the URDF of the physically consistent identified arm and the effects a URDF cannot
         hold in a sidecar YAML (``model_repair.export.to_urdf``); returns the written paths."""
