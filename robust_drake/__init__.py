@@ -43,6 +43,8 @@ _LAZY = {
     "ellipsoid": "robust_drake.api",
     "run_batch": "robust_drake.api",
     "run_montecarlo": "robust_drake.api",
+    "excite": "robust_drake.api",
+    "ExcitationConfig": "robust_drake.excitation.design",
     "ClosedLoopConfig": "robust_drake.diagram",
     "tracking_figure": "robust_drake.plotting",
     "task_path_figure": "robust_drake.plotting",

@@ -480,3 +480,53 @@ def run_montecarlo(robot: str = "d2r2", controllers: Sequence[str] = ("sp1", "sp
                 seed=seed)
     scenarios = mc.montecarlo_scenarios(robot, list(controllers), thetas, base=base, tags=tags)
     return mc.run_montecarlo(scenarios, out=out, workers=workers, progress=progress)
+
+
+def excite(robot: str | None = None, *, config: "Any" = None, progress: Callable | None = None,
+           **options: Any) -> "Any":
+    """Design an identification experiment: a periodic, band-limited Fourier motion that
+    maximises log det of the information of the base parameters plus friction (D-optimal,
+    Swevers et al. 1997; Gautier & Khalil 1992's condition number is reported), within the
+    joint position, velocity, acceleration and torque limits and free of collisions where the
+    URDF has collision geometry, at rest at the start pose at both ends
+    (:mod:`robust_drake.excitation.design`).
+
+    ``rd.excite("panda", duration=10)`` is short for
+    ``rd.excite(config=rd.ExcitationConfig(robot="panda", duration=10))``.
+
+    Parameters
+    ----------
+    robot : str
+        Robot name or URDF path (when ``config`` is not given).
+    config : ExcitationConfig, optional
+        The whole design: duration [s], period [s], harmonics, max_frequency [Hz], start pose
+        [rad], velocity / acceleration / torque limits, ``effects`` (kinds added to the
+        information, e.g. ``("position_dependent", "stribeck")``), min_distance [m], rate [Hz].
+    progress : callable, optional
+        ``progress(message)`` at each stage (default: the ``robust_drake`` logger).
+    **options
+        :class:`~robust_drake.excitation.design.ExcitationConfig` fields.
+
+    Returns
+    -------
+    ExcitationResult
+        ``trajectory`` (callable t -> (q, qd, qdd)), samples ``t, q, qd, qdd, tau`` at the
+        robot's rate, ``report`` (log_det, condition_number, predicted_std vs the default
+        excitation, margins); ``to_csv(path)`` writes ``t, q1.., qd1.., qdd1..`` (what
+        ``simulate --trajectory FILE.csv`` tracks), ``plot(dir)``, ``figure()``.
+
+    Raises
+    ------
+    RobustDrakeError
+        On a bad configuration or when no motion satisfies the limits.
+    """
+    from robust_drake.excitation.design import ExcitationConfig as _Config
+    from robust_drake.excitation.design import design_excitation
+
+    if config is not None and (robot is not None or options):
+        raise RobustDrakeError("excite: give either a config or robot and options, not both")
+    if config is None:
+        if robot is None:
+            raise RobustDrakeError("excite: give the robot (a name or a URDF path)")
+        config = _Config(robot=robot, **options)
+    return design_excitation(config, progress=progress)

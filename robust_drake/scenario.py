@@ -509,7 +509,7 @@ def validate_scenarios(scenarios: Iterable[Scenario]) -> None:
             problems.append(f"{where}: unknown robot {s.robot!r} (known: {', '.join(sorted(ROBOTS))})")
         for kind, name in (("controller", s.controller), ("observer", s.observer),
                            ("trajectory", s.trajectory)):
-            if name not in registry.names(kind):
+            if name not in registry.names(kind) and not (kind == "trajectory" and str(name).lower().endswith(".csv")):
                 problems.append(f"{where}: unknown {kind} {name!r} "
                                 f"(known: {', '.join(registry.names(kind))})")
         if not (isinstance(s.rate, (int, float)) and math.isfinite(s.rate) and s.rate > 0):

@@ -15,7 +15,9 @@ def register(sub):
     p.add_argument("--robot", default="d2r2", help="robot name (URDFs shipped in robust_drake/robots/) or a URDF path (default d2r2)")
     p.add_argument("--load", default="none", help="load variant: none | max (default none)")
     p.add_argument("--controller", default="sp1", help="controller name (pd, sp1, sp2, ...; default sp1)")
-    p.add_argument("--trajectory", default="cpt", help="cpt | circle | refmodel | sine | step | line (default cpt)")
+    p.add_argument("--trajectory", default="cpt",
+                   help="cpt | circle | refmodel | sine | step | line, or a trajectory file FILE.csv (t, q1.., qd1.., "
+                        "qdd1..: what 'robust-drake excite --out' writes) (default cpt)")
     p.add_argument("--trajectory-param", action="append", default=[], metavar="KEY=VALUE",
                    help="a parameter of the trajectory factory, repeatable; VALUE is YAML, e.g. amplitude=0.3, "
                         "offset=[0,0,0,-1.57,0,1.87,0] (sine/step/cpt/refmodel; default offset: q = 0 where "

@@ -87,6 +87,11 @@ class IdentifiedModel:
     effects: list[IdentifiedEffect] = field(default_factory=list)
     estimator: str = "least_squares"
     data: dict = field(default_factory=dict)  # summary of the fit data (samples, filter, ranges)
+    #: the repair's physically consistent fit of the same model (``identification.consistency``):
+    #: {"solver", "bodies": {link: {"mass", "com", "inertia_origin"}}, "extras": {"Ia_<joint>": ...},
+    #: "base_values", "coulomb", "viscous", "effect_coefficients", "min_pseudo_inertia_eig"};
+    #: None when it was not computed (``model_repair.export`` writes the URDF from it)
+    consistent: dict | None = None
 
     @property
     def n(self) -> int:
@@ -104,6 +109,7 @@ class IdentifiedModel:
             "effects": [{"kind": e.kind, "joint": e.joint, "parameters": dict(e.parameters),
                          "coefficients": [float(c) for c in e.coefficients]} for e in self.effects],
             "estimator": self.estimator, "data": dict(self.data),
+            **({"consistent": self.consistent} if self.consistent is not None else {}),
         }
 
     @classmethod
@@ -118,7 +124,8 @@ class IdentifiedModel:
                        viscous=np.asarray(d["friction"]["viscous"], float),
                        effects=[IdentifiedEffect(e["kind"], e["joint"], dict(e["parameters"]),
                                                  list(e["coefficients"])) for e in d.get("effects", [])],
-                       estimator=d.get("estimator", "least_squares"), data=dict(d.get("data") or {}))
+                       estimator=d.get("estimator", "least_squares"), data=dict(d.get("data") or {}),
+                       consistent=d.get("consistent"))
         except (KeyError, TypeError) as exc:
             raise RobustDrakeError(f"not an identified model (missing {exc})") from None
 
@@ -182,6 +189,29 @@ class IdentifiedModel:
 
         theta0, P = confidence_ellipsoid(self, alpha)
         return Ellipsoid(theta0, P)
+
+    # ------------------------------------------------------------------ export (model_repair/export.py)
+    def consistent_model(self) -> "IdentifiedModel":
+        """This model with the physically consistent fit's values (``model_repair.export``)."""
+        from robust_drake.model_repair.export import consistent_model
+
+        return consistent_model(self)
+
+    @classmethod
+    def from_export(cls, path) -> "IdentifiedModel":
+        """The model of a ``to_urdf`` export (the URDF or its ``.identified.yaml`` sidecar):
+        robot = the exported URDF, its base parameters, friction and effects from the sidecar
+        (``model_repair.export.read_export``)."""
+        from robust_drake.model_repair.export import read_export
+
+        return cls.from_json(read_export(path))
+
+    def to_urdf(self, path) -> dict:
+        """Write the URDF of the physically consistent identified arm and the effects a URDF cannot
+        hold in a sidecar YAML (``model_repair.export.to_urdf``); returns the written paths."""
+        from robust_drake.model_repair.export import to_urdf
+
+        return to_urdf(self, path)
 
     # ------------------------------------------------------------------ torques
     def effect_terms(self) -> list:
@@ -546,7 +576,21 @@ def _strict(obj):
 
 #: File formats of :meth:`IdentifiedModel.load` / :meth:`IdentifiedModel.save`, tried in order
 #: (another format, e.g. URDF + sidecar YAML, is one more entry).
-FORMATS: dict[str, ModelFormat] = {"json": ModelFormat(_json_matches, _json_load, _json_save)}
+def _urdf_matches(path, saving: bool = False) -> bool:
+    name = str(path).lower()
+    return name.endswith(".urdf") or name.endswith(".identified.yaml")
+
+
+def _urdf_load(path) -> IdentifiedModel:
+    return IdentifiedModel.from_export(path)
+
+
+def _urdf_save(model: IdentifiedModel, path) -> None:
+    model.to_urdf(path)
+
+
+FORMATS: dict[str, ModelFormat] = {"json": ModelFormat(_json_matches, _json_load, _json_save),
+                                   "urdf": ModelFormat(_urdf_matches, _urdf_load, _urdf_save)}
 
 
 def joint_names_of(regressor, n: int) -> list[str]:

@@ -154,7 +154,7 @@ def _reference(res: RepairResult):
 
 
 def _models(res: RepairResult):
-    return identified_models(res.inputs, res.baseline, res.estimator, res.selection, res.final)
+    return identified_models(res.inputs, res.baseline, res.estimator, res.selection, res.final, res.consistent)
 
 
 #: at most this many validation segments get a column in ``torque_validate.png``
