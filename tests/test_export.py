@@ -81,6 +81,10 @@ def test_export_of_a_known_arm_is_that_arm_in_drake_and_round_trips(tmp_path):
     back = IdentifiedModel.from_export(out["urdf"])
     assert np.abs(back.predict_torque(q, qd, qdd) - cm.predict_torque(q, qd, qdd)).max() < 1e-9
     assert IdentifiedModel.from_export(out["sidecar"]).robot == back.robot
+    # the generic loader takes the export too (URDF or sidecar), as `simulate --model` does
+    for path in (out["urdf"], out["sidecar"]):
+        loaded = IdentifiedModel.load(path)
+        assert np.abs(loaded.predict_torque(q, qd, qdd) - back.predict_torque(q, qd, qdd)).max() < 1e-12
 
 
 def test_export_refuses_models_without_a_consistent_body(tmp_path):
