@@ -23,7 +23,9 @@
 #    does not know, friction, torque noise); on hardware, track the written CSV and log `t, q, tau`;
 # 3. **repair**: identify, find the missing effect, report before/after (`rd.repair`);
 # 4. **export**: the physically consistent identified arm as a URDF + the effects in a sidecar YAML;
-# 5. **control**: SP1 (Jaritz & Spong) with the identified model as its nominal parameters.
+# 5. **control**: Calafiore & Indri's eq. 15 designed from the identified model and its confidence
+#    set, checked on arms drawn across that set (`rd.control`, `robust-drake control`), then SP1
+#    (Jaritz & Spong) with the identified model as its nominal parameters and uncertainty set.
 
 # %%
 import os
@@ -31,9 +33,6 @@ import tempfile
 
 # %matplotlib inline
 import robust_drake as rd
-from robust_drake.experiments.logs_to_control import excitation_for
-from robust_drake.model_repair.model import IdentifiedModel
-from robust_drake.model_repair.simulated import simulate_experiment
 
 SHORT = os.environ.get("ROBUST_DRAKE_SHORT") == "1"
 out = os.environ.get("ROBUST_DRAKE_NOTEBOOK_OUT") or tempfile.mkdtemp(prefix="identify_")
@@ -57,8 +56,8 @@ design.figure()
 truth = [("position_dependent", 1, {"amplitude": 0.06, "phase": 0.5, "harmonic": 4})]
 kw = dict(robot=robot, effects=truth, duration=duration, coulomb=(0.02, 0.01))  # 5 mN m torque noise
 fit, val = os.path.join(out, "fit.csv"), os.path.join(out, "validate.csv")
-simulate_experiment(**kw, out_csv=fit, excitation={**excitation_for(robot), "reference": design.trajectory})
-_ = simulate_experiment(**kw, out_csv=val, seed=1, excitation=excitation_for(robot))  # another motion
+_ = rd.simulate_experiment(**kw, out_csv=fit, reference=design.trajectory)
+_ = rd.simulate_experiment(**kw, out_csv=val, seed=1)  # another motion: the built-in excitation
 
 # %% [markdown]
 # ## 3. Repair
@@ -74,18 +73,22 @@ rd.repair_figure(report)
 # ## 4. Export: URDF (consistent inertials, friction) + sidecar (the cogging)
 
 # %%
-model = IdentifiedModel.from_report(report)
+model = report.model
 files = model.to_urdf(os.path.join(out, "c1_identified.urdf"))
-back = IdentifiedModel.from_export(files["urdf"])
+back = rd.IdentifiedModel.load(files["urdf"])
 print(files["urdf"], "| sidecar effects:", files["effects_in_sidecar"], "| notes:", files["notes"])
 print("round trip:", [e.kind for e in back.effects], back.base_names[:3], "...")
 
 # %% [markdown]
-# ## 5. Control: SP1 with the identified model, on the true arm, tracking a sine within the limits
+# ## 5. Control: CI eq. 15 from the identified model and its set, then SP1 with the model
+#
+# Control takes the repair's model (`report.model`, or `report.json`): it carries the confidence
+# set; the URDF export is for other tools and keeps the bodies and effects, not the covariance.
 
 # %%
-theta = model.consistent_model().base_values.tolist()
-res = rd.simulate(robot=robot, controller="sp1", controller_params={"theta0": theta}, trajectory="sine",
-                  duration=1.0 if SHORT else 3.0, friction_compensation=False)
-print({k: round(v, 5) for k, v in res.metrics.items()})
+ctl = rd.control(model, "ci", draws=2 if SHORT else 8, track_duration=1.5 if SHORT else 2.0)
+print(ctl["verdict"], "| bound per joint [rad]:", ctl["bound"], "| largest error:", ctl["max_error"])
+res = rd.simulate(robot=robot, controller="sp1", model=model, plant_model=model, trajectory="sine",
+                  duration=1.0 if SHORT else 3.0)
+print("SP1 with the identified theta0 and set:", {k: round(v, 5) for k, v in res.metrics.items()})
 res.plot()

@@ -44,6 +44,7 @@ _LAZY = {
     "run_batch": "robust_drake.api",
     "run_montecarlo": "robust_drake.api",
     "excite": "robust_drake.api",
+    "simulate_experiment": "robust_drake.api",
     "ExcitationConfig": "robust_drake.excitation.design",
     "ClosedLoopConfig": "robust_drake.diagram",
     "tracking_figure": "robust_drake.plotting",

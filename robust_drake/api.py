@@ -530,3 +530,45 @@ def excite(robot: str | None = None, *, config: "Any" = None, progress: Callable
             raise RobustDrakeError("excite: give the robot (a name or a URDF path)")
         config = _Config(robot=robot, **options)
     return design_excitation(config, progress=progress)
+
+
+def simulate_experiment(robot: str, effects: Any = (), *, duration: float = 10.0, reference: Any = None,
+                        seed: int = 0, out_csv: str | None = None, **options: Any) -> "Any":
+    """Rehearse an identification experiment in simulation: the arm (URDF + the description's
+    friction) with hidden ``effects`` tracks ``reference`` (e.g. ``rd.excite(...).trajectory``,
+    or by default the built-in Fourier excitation about the middle of the joint ranges) under a
+    PD loop, with torque noise and encoder rounding; returns the log ``t, q1..qn, tau1..taun``
+    [s, rad, N m] as a DataFrame and writes it to ``out_csv`` when given (what ``rd.repair``
+    reads).
+
+    Parameters
+    ----------
+    robot : str
+        Robot name or URDF path.
+    effects : list of (kind, joint, parameters)
+        Effects the simulated arm has and the URDF does not (kinds of the effect library, joints
+        0-based as in the library's constructors), e.g. ``[("position_dependent", 1,
+        {"amplitude": 0.06, "harmonic": 4})]``.
+    duration : float
+        Length of the log [s].
+    reference : callable, optional
+        ``f(t) -> (q, qd, qdd)`` to track instead of the default excitation.
+    seed : int
+        Seed of the noise (and of the default excitation's phases).
+    out_csv : str, optional
+        Where to write the log.
+    **options
+        ``model_repair.simulated.simulate_experiment`` keywords (``rate_hz``, ``coulomb``,
+        ``viscous``, ``torque_noise_std`` [N m], ``encoder_resolution`` [rad], ...).
+    """
+    from robust_drake.experiments.logs_to_control import excitation_for
+    from robust_drake.model_repair.simulated import simulate_experiment as _simulate
+
+    excitation = excitation_for(robot)
+    if reference is not None:
+        if not callable(reference):
+            raise RobustDrakeError("simulate_experiment: reference must be a callable t -> (q, qd, qdd), "
+                                   "e.g. rd.excite(...).trajectory")
+        excitation["reference"] = reference
+    return _simulate(robot=robot, effects=effects, duration=duration, seed=seed, excitation=excitation,
+                     out_csv=out_csv, **options)
