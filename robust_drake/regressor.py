@@ -267,6 +267,9 @@ def _body_force_regressor(vel, acc):
     return K
 
 
+#: samples per block of :meth:`InverseDynamicsRegressor.evaluate` / ``torque`` for large N
+EVALUATE_ROWS = 4096
+
 _STD_SUFFIX = ("m", "mx", "my", "mz", "Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz")
 # Priority when choosing which standard column represents a group (earlier = kept):
 # joint-axis inertias before masses (the classical regrouping into ZZ_j), base-side bodies first.
@@ -804,16 +807,41 @@ class InverseDynamicsRegressor:
             raise RobustDrakeError(f"q, v, vdot must have shape (N, {n}) or ({n},) and equal N")
         return arrs
 
+    def _standard_rows(self, q, v, vd, columns=None):
+        """Standard regressor of checked (N, n) arrays, restricted to ``columns`` when given,
+        evaluated in blocks of ``EVALUATE_ROWS`` samples for large N (the recursion's temporaries
+        grow with N: ~20 kB per sample of serial7, 2 GB at 10^5 samples at once). Every sample is
+        computed on its own by the same route (the recursion for N > 64), so the values do not
+        depend on the blocking."""
+        N = q.shape[0]
+        if self.method == "symbolic":
+            f = self._standard_symbolic
+        else:
+            f = self._standard_world if N <= 64 else self._standard_numeric_recursive
+        if N <= EVALUATE_ROWS:
+            Y = f(q, v, vd)
+            return Y if columns is None else Y[:, :, columns]
+        p = self.p_standard if columns is None else len(columns)
+        out = np.empty((N, self.n, p))
+        for a in range(0, N, EVALUATE_ROWS):
+            r = slice(a, a + EVALUATE_ROWS)
+            if r.stop < N < r.stop + 65:  # no short tail (<= 64 rows would switch route)
+                r = slice(a, N)
+            Y = f(q[r], v[r], vd[r])
+            out[r] = Y if columns is None else Y[:, :, columns]
+            if r.stop == N:
+                break
+        return out
+
     def evaluate_standard(self, q, v, vdot) -> np.ndarray:
         """Regressor for the standard parameters, (N, n, p_standard)."""
         q, v, vd = self._inputs(q, v, vdot, self.n)
-        if self.method == "symbolic":
-            return self._standard_symbolic(q, v, vd)
-        return self._standard_numeric(q, v, vd)
+        return self._standard_rows(q, v, vd)
 
     def evaluate(self, q, v, vdot) -> np.ndarray:
         """Base regressor Y, (N, n, p_base): tau = Y @ theta_base (gravity included)."""
-        return self.evaluate_standard(q, v, vdot)[:, :, self.base_index]
+        q, v, vd = self._inputs(q, v, vdot, self.n)
+        return self._standard_rows(q, v, vd, self.base_index)
 
     # ------------------------------------------------------------------ Slotine-Li regressor
     def _slotine_li_std(self, q, qd, v, a) -> np.ndarray:
@@ -959,9 +987,22 @@ class InverseDynamicsRegressor:
         return arrs
 
     def torque(self, q, v, vdot, theta_base=None) -> np.ndarray:
-        """Inverse dynamics (N, n) from the regressor with theta_base (default: the URDF's)."""
+        """Inverse dynamics (N, n) from the regressor with theta_base (default: the URDF's),
+        in blocks of ``EVALUATE_ROWS`` samples (no (N, n, p) array)."""
         th = self.base_parameters() if theta_base is None else np.asarray(theta_base, float)
-        return self.evaluate(q, v, vdot) @ th
+        q, v, vd = self._inputs(q, v, vdot, self.n)
+        N = q.shape[0]
+        if N <= EVALUATE_ROWS:
+            return self.evaluate(q, v, vd) @ th
+        out = np.empty((N, self.n))
+        for a in range(0, N, EVALUATE_ROWS):
+            r = slice(a, a + EVALUATE_ROWS)
+            if r.stop < N < r.stop + 65:
+                r = slice(a, N)
+            out[r] = self.evaluate(q[r], v[r], vd[r]) @ th
+            if r.stop == N:
+                break
+        return out
 
     def standard_parameters(self, plant=None, context=None) -> np.ndarray:
         """pi: standard parameters read from ``context`` of ``plant`` (default: the URDF's values).
