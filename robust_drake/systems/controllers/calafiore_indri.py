@@ -238,7 +238,7 @@ def _make_any_arm(ctx, robust, p):
         from robust_drake.model_repair.model import attach_compensation
 
         attach_compensation(c, model)
-    return c
+    return _fused(c)
 
 
 def _reference_regressors(ctx, reg, samples: int = 200) -> np.ndarray:
@@ -279,7 +279,15 @@ def _make(ctx, robust, params):
         c.uncertainty = {"kind": "ellipsoid", "source": "CI section 5.1" if "P" not in params else "user P",
                          "theta0": np.asarray(p["theta0"], float).tolist()}
         c.rho = float(np.linalg.norm(c.E, 2)) if robust else None
-    return c
+    return _fused(c)
+
+
+def _fused(c):
+    """The closed loop's block: the four contract ports gathered by one C++ Multiplexer, so the
+    per-tick update reads one port (spong.FusedInputController; same torque, tests/test_compiled_blocks.py)."""
+    from robust_drake.systems.controllers.spong import FusedInputController
+
+    return FusedInputController(c)
 
 
 def make_calafiore(ctx, **params):

@@ -205,12 +205,6 @@ class _SpongController(DiscreteController):
         self._Lam, self._K, self._theta0 = self.Lambda.tolist(), self.K.tolist(), self.theta0.tolist()
         self.scalar_fast_path = bool(scalar_fast_path)
         self.uncertainty = None  # the parameter set rho comes from (set by the factories)
-        self._inputs_port = None  # [x_d, q, v, v_error] in one port (FusedInputController)
-
-    def enable_fused_input(self):
-        """Declare input ``inputs`` = [x_d, q, v, v_error] (6n), read by the per-tick update instead
-        of the four contract ports (:class:`FusedInputController` feeds it from a C++ Multiplexer)."""
-        self._inputs_port = self.DeclareVectorInputPort("inputs", 6 * self.n)
 
     def robust_input(self, xi):  # pragma: no cover - abstract
         raise NotImplementedError
@@ -260,7 +254,7 @@ class _SpongController(DiscreteController):
 
 
 class FusedInputController(Diagram):
-    """The controller block of a scalar-path SP1/SP2 controller ``law``: ports ``x_d``, ``q``, ``v``,
+    """The controller block of a :class:`DiscreteController` ``law`` (SP1/SP2, CI): ports ``x_d``, ``q``, ``v``,
     ``v_error`` -> ``u`` as the contract says, gathered inside by one C++ Multiplexer into the law's
     ``inputs`` port, so the per-tick Python update reads one port instead of four (about 3 us per
     2500 Hz tick, BUILD_NOTES "Speed of the 2500 Hz loop"); same torque
@@ -640,7 +634,7 @@ def _make_spong(ctx, params, which):
         from robust_drake.model_repair.model import attach_compensation
 
         attach_compensation(c, model)
-    return FusedInputController(c) if c.scalar_fast_path else c
+    return FusedInputController(c)
 
 
 def make_pd(ctx, K=None, Lambda=None):
