@@ -379,3 +379,28 @@ def test_release_keeps_the_answers(reg):
     assert len(cache._effects) == 1 and not cache._grams
     assert [cv_score(cache, [spring], w, folds), cv_score(cache, [spring, stribeck], w, folds)] == before
     assert np.array_equal(cache.model([spring, stribeck])[0], Y_before)
+
+
+def test_qr_factor_in_row_blocks_equals_the_qr_of_the_joined_columns(reg):
+    """``ColumnCache.qr_r`` (incremental QR over row blocks, no joined copy) = R of the stacked
+    weighted [A | b] (LS) and of [Zw lstsq(Zw, A) | b] (two-stage IV), up to the signs of R's rows:
+    R^T R equal to round-off, and the consistent fit solved from it the same."""
+    from robust_drake.identification.consistency import consistent_identification
+
+    data, zdata = _data(reg), _data(reg, cutoff=4.0)
+    cache, icache = ColumnCache(data, reg), ColumnCache(zdata, reg)
+    effects = [_candidates()[2], _candidates()[0]]
+    w = np.array([25.0, 9.0])
+    Y, Z = cache.model(effects)[0], icache.model(effects)[0]
+    A, Zw = ((M * w[None, :, None]).reshape(-1, Y.shape[2]) for M in (Y, Z))
+    b = (data.tau * w[None, :]).reshape(-1)
+    for left, AA in ((None, A), (icache, Zw @ np.linalg.lstsq(Zw, A, rcond=None)[0])):
+        ref = np.linalg.qr(np.column_stack([AA, b]), mode="r")
+        for rows in (50, 333, 10**6):  # several blocks (not dividing N), one block
+            R = cache.qr_r(effects, w, left=left, block_rows=rows)
+            assert R.shape == ref.shape
+            assert _close(R.T @ R, ref.T @ ref), (left, rows)
+        n_extra = Y.shape[2] - len(reg.base_names)
+        fast = consistent_identification(reg, ROBOT, None, None, n_extra, R_full=cache.qr_r(effects, w, left=left))
+        slow = consistent_identification(reg, ROBOT, AA, b, n_extra)
+        assert np.allclose(fast.theta, slow.theta, rtol=1e-5, atol=1e-6 * np.abs(slow.theta).max())

@@ -75,18 +75,21 @@ class ConsistentResult:
                 "extras": self.extras or {}}
 
 
-def consistent_fit(A: np.ndarray, b: np.ndarray, K: np.ndarray, pi_prior: np.ndarray, n_links: int,
-                   n_extra: int, prior_weight: float = PRIOR_WEIGHT, m_min: float = M_MIN):
+def consistent_fit(A: np.ndarray | None, b: np.ndarray | None, K: np.ndarray, pi_prior: np.ndarray, n_links: int,
+                   n_extra: int, prior_weight: float = PRIOR_WEIGHT, m_min: float = M_MIN,
+                   R_full: np.ndarray | None = None):
     """Solve the compressed SDP. A: (rows, p_base + n_extra) weighted regressor, b: rows.
 
     ``pi`` = [10 per link | non-negative extras (reflected inertia, damping)], theta_base = K pi.
-    Returns (pi (p_std,), extra coefficients (n_extra,), solver name)."""
+    ``R_full``: the R factor of [A | b] already computed (``ColumnCache.qr_r``, by row blocks);
+    then A and b are not used. Returns (pi (p_std,), extra coefficients (n_extra,), solver name)."""
     from pydrake.solvers import MathematicalProgram, Solve
 
-    p = A.shape[1]
     p_base, p_std = K.shape
     # compression: R of the QR factorisation of [A | b]; ||A x - b||^2 = ||R x - z||^2 + const
-    R_full = np.linalg.qr(np.column_stack([A, b]), mode="r")
+    if R_full is None:
+        R_full = np.linalg.qr(np.column_stack([A, b]), mode="r")
+    p = R_full.shape[1] - 1
     R, z = R_full[:p, :p], R_full[:p, p]
     prog = MathematicalProgram()
     pi = prog.NewContinuousVariables(p_std, "pi")
@@ -130,7 +133,7 @@ def _J_coeff(k: int) -> np.ndarray:
     return pseudo_inertia(e)
 
 
-def consistent_identification(regressor, robot, A, b, n_extra: int) -> ConsistentResult:
+def consistent_identification(regressor, robot, A, b, n_extra: int, R_full=None) -> ConsistentResult:
     """Consistent estimate for the weighted stacked problem A x ~ b, x = [theta_base | extras].
 
     Uses the regressor's own map ``theta_base = K pi`` and its URDF values as the prior."""
@@ -139,7 +142,7 @@ def consistent_identification(regressor, robot, A, b, n_extra: int) -> Consisten
     bodies = [names[10 * i][2:] for i in range(n_links)]
     prior = np.asarray(regressor.standard_parameters(), float)
     K = np.asarray(regressor.K, float)
-    pis, cs, solver = consistent_fit(A, b, K, prior, n_links, n_extra)
+    pis, cs, solver = consistent_fit(A, b, K, prior, n_links, n_extra, R_full=R_full)
     links = pis[:10 * n_links].reshape(n_links, 10)
     eig = [float(np.linalg.eigvalsh(pseudo_inertia(p)).min()) for p in links]
     if min(eig) < -1e-6 * max(1.0, float(np.abs(links).max())):

@@ -539,17 +539,11 @@ def consistent_fit(inp: Inputs, effects, weights, cz=None):
 def _consistent_fit(inp: Inputs, effects, weights, cz=None):
     from robust_drake.identification.consistency import consistent_identification
 
-    Y, _, _ = inp.cf.model(effects)
-    w = weights
-    A = (Y * w[None, :, None]).reshape(-1, Y.shape[2])
-    b = (inp.cf.data.tau * w[None, :]).reshape(-1)
-    if cz is not None:
-        Z, _, _ = cz.model(effects)
-        Zw = (Z * w[None, :, None]).reshape(-1, Z.shape[2])
-        A = Zw @ np.linalg.lstsq(Zw, A, rcond=None)[0]
+    # R of [W Y | W tau] (IV: of [P_WZ W Y | W tau]) by row blocks, not the joined copies (fitting.py)
+    R = inp.cf.qr_r(effects, weights, left=cz)
     p_base = len(inp.regressor.base_names)
     # extras = friction + effect columns, which follow the base block
-    return consistent_identification(inp.regressor, inp.robot, A, b, Y.shape[2] - p_base)
+    return consistent_identification(inp.regressor, inp.robot, None, None, R.shape[1] - 1 - p_base, R_full=R)
 
 
 @dataclass
