@@ -162,6 +162,10 @@ def solve_gram(G: np.ndarray, g: np.ndarray, tol: float = RANK_TOL):
     return theta, Pinv / np.outer(scale, scale), keep, s, V, scale
 
 
+#: samples per block of :func:`solve_ls`'s normal equations
+LS_ROWS = 4096
+
+
 def solve_ls(Y: np.ndarray, tau: np.ndarray, names: list[str], weights=None,
              tol: float = RANK_TOL, warn: bool = True, rows=None) -> LSResult:
     """Least squares ``tau ~ Y theta`` (joints stacked), optional per-joint row weights.
@@ -181,11 +185,14 @@ def solve_ls(Y: np.ndarray, tau: np.ndarray, names: list[str], weights=None,
     if len(names) != p:
         raise ValueError(f"{p} columns but {len(names)} names")
     w = np.ones(n) if weights is None else np.asarray(weights, float)
-    Yw = Y * w[None, :, None]
-    bw = tau * w[None, :]
-    G = np.einsum("nip,niq->pq", Yw, Yw, optimize=True)
-    g = np.einsum("nip,ni->p", Yw, bw, optimize=True)
-    del Yw, bw
+    # normal equations by row blocks: the weighted copy of one block at a time, not of all
+    # (N, n, p) (at 99.5k rows x 7 joints the joined weighted copy and einsum's were ~0.7 GB)
+    G, g = np.zeros((p, p)), np.zeros(p)
+    for r0 in range(0, N, LS_ROWS):
+        Yw = (Y[r0:r0 + LS_ROWS] * w[None, :, None]).reshape(-1, p)
+        G += Yw.T @ Yw
+        g += Yw.T @ (tau[r0:r0 + LS_ROWS] * w[None, :]).reshape(-1)
+    Yw = None  # the last block, before the residual's (N, n) arrays
     return solve_normal(G, g, lambda theta: tau - Y @ theta, names, w, N, tol, warn, rows)
 
 

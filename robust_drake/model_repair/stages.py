@@ -173,14 +173,15 @@ def fit_friction_bounded(cache: ColumnCache, effects, weights, icache: ColumnCac
     while True:
         keep = [k for k in range(len(names)) if k not in fixed]
         nk = [names[k] for k in keep]
+        cols = slice(None) if not fixed else keep  # no fancy-indexed copy of all columns when none is fixed
         if Z is None:
-            sub = solve_ls(Y[:, :, keep], tau, nk, weights=weights, warn=not fixed)
+            sub = solve_ls(Y[:, :, cols], tau, nk, weights=weights, warn=not fixed)
         else:
-            sub = solve_iv(Y[:, :, keep], Z[:, :, keep], tau, nk, weights, nf, data=cache.data, robust=False)
+            sub = solve_iv(Y[:, :, cols], Z[:, :, cols], tau, nk, weights, nf, data=cache.data, robust=False)
         neg = [keep[i] for i, nm in enumerate(nk) if _friction_level(nm) and sub.theta[i] < 0]
         if not neg:
             if Z is not None and robust:
-                sub = solve_iv(Y[:, :, keep], Z[:, :, keep], tau, nk, weights, nf, data=cache.data)
+                sub = solve_iv(Y[:, :, cols], Z[:, :, cols], tau, nk, weights, nf, data=cache.data)
             break
         free.update({names[k]: float(sub.theta[keep.index(k)]) for k in neg})
         fixed += neg
