@@ -92,7 +92,10 @@ def test_fixed_rigid_fit_holds_effect_coefficients_inside_their_bounds():
     Y[:, 0, 1] = v                                # a free (friction-like) column
     Y[:, 0, 2] = -tau[:, 0]                       # torque_scale[0]: column -tau_0
     ts = make_effect("torque_scale", 0)
-    cache = SimpleNamespace(model=lambda effects: (Y, None, [slice(2, 3)]), data=SimpleNamespace(tau=tau))
+    # a ColumnCache stand-in: base block = columns 0-1, the effect's block = column 2
+    cache = SimpleNamespace(blocks=lambda effects: ([Y[:, :, :2], Y[:, :, 2:]], None, [slice(2, 3)]),
+                            explicit_prediction=lambda effects, th, mask: Y[:, :, mask] @ th[mask],
+                            data=SimpleNamespace(tau=tau))
     w = np.array([1.0, 1.0])
     rhs = tau - Y[:, :, 0] * 2.0
     free = np.linalg.lstsq(Y[:, 0, 1:], rhs[:, 0], rcond=None)[0]
@@ -101,8 +104,7 @@ def test_fixed_rigid_fit_holds_effect_coefficients_inside_their_bounds():
     assert th[0] == 2.0 and th[2] == 0.5
     want = np.linalg.lstsq(Y[:, 0, 1:2], rhs[:, 0] - Y[:, 0, 2] * 0.5, rcond=None)[0][0]
     assert th[1] == pytest.approx(want, rel=1e-10)
-    inside = NM.fit_with_fixed_rigid(SimpleNamespace(model=cache.model, data=SimpleNamespace(tau=tau)),
-                                     [ts], np.array([0.3]), w)
+    inside = NM.fit_with_fixed_rigid(cache, [ts], np.array([0.3]), w)
     assert abs(inside[2]) < 0.5  # nothing clipped when the fit is admissible
 
 

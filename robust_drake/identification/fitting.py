@@ -128,10 +128,12 @@ class ColumnCache:
             self._effects.move_to_end(key)
             return hit[:2]
         Y, names = effect.columns(self.source)  # the measured torque, not the zeroed one
-        Y = np.asarray(Y, float)
+        Y = np.array(Y, dtype=float, order="C")  # our own copy (an effect may hold its array)
         if Y.ndim == 2:
             Y = Y[:, :, None]
-        Y = np.ascontiguousarray(self._masked(parallel_filter(self.data, Y)))
+        parallel_filter(self.data, Y, out=Y)  # in place: no filtered and masked copies at once
+        if self.keep is not None:
+            Y *= self.keep[:, :, None]
         self._effects[key] = (Y, list(names), effect)
         self._held[key] = effect
         self._effect_bytes += Y.nbytes

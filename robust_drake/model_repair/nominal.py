@@ -108,16 +108,20 @@ def fit_with_fixed_rigid(cache, effects, theta0: np.ndarray, weights) -> np.ndar
     Without that, a torque_scale fitted against the URDF's rigid body can come out at -1 or below,
     where the output-error prediction's fixed point tau_hat = m / (1 + c) diverges (measured: 22.7 N m
     RMS on jittered, gapped DFKI A.0 logs whose repaired model validates at 0.29 N m)."""
-    Y, _, slices = cache.model(effects)
-    p0 = len(theta0)
+    blocks, _, slices = cache.blocks(effects)
+    spans = [slice(0, blocks[0].shape[2])] + slices
+    p, p0 = spans[-1].stop, len(theta0)
     w = np.asarray(weights, float)
-    fixed = np.zeros(Y.shape[2], bool)
-    th = np.concatenate([theta0, np.zeros(Y.shape[2] - p0)])
+    fixed = np.zeros(p, bool)
+    th = np.concatenate([theta0, np.zeros(p - p0)])
     for _ in range(2):  # fit; if a bound binds, fix those columns and refit the others once
         free = ~fixed
         free[:p0] = False
-        rhs = (cache.data.tau - Y[:, :, ~free] @ th[~free]) * w[None, :]
-        A = (Y[:, :, free] * w[None, :, None]).reshape(-1, int(free.sum()))
+        # from the column blocks (no joined (N, n, p) copy): the fixed columns' prediction block
+        # by block, the few free columns (friction, effects) gathered
+        rhs = (cache.data.tau - cache.explicit_prediction(effects, th, mask=~free)) * w[None, :]
+        A = np.concatenate([Y[:, :, free[sl]] for Y, sl in zip(blocks, spans) if free[sl].any()], axis=2)
+        A = (A * w[None, :, None]).reshape(-1, int(free.sum()))
         th[free] = np.linalg.lstsq(A, rhs.reshape(-1), rcond=None)[0]
         clip = _bounded_columns(effects, slices, th)
         if not clip:
