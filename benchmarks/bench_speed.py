@@ -10,9 +10,12 @@
 3. Repair of serial7 dead-zone logs (``bench_repair.py``, each in its own process so its peak RSS is its
    own): CPU seconds, wall seconds and peak RSS at 20 s and 100 s of 1 kHz logs (19.5k / 99.5k rows x 7
    joints, fit and validation each).
+4. The confidence ellipsoid: the chordal SDP through Drake's MathematicalProgram (bundled Clarabel) and the
+   same data handed to pip clarabel, CPU seconds side by side; the closed-form energy bound at 1000 samples.
 
     OPENBLAS_NUM_THREADS=1 PYTHONPATH=. python benchmarks/bench_speed.py [--seconds 2] [--repeats 5]
-        [--repair 20,100] [--repair-dir DIR] [--skip loops,repair]
+        [--repair 20,100] [--repair-dir DIR] [--ellipsoid 30,100] [--energy-samples 1000]
+        [--skip regressor,loops,repair,ellipsoid]
 
 Timings on a shared machine are upper bounds; the ratios (measured side by side in one process) are what
 to quote.  The D2R2 loop in instructions (load-independent): ``benchmarks/instructions_per_tick.sh``.
@@ -125,13 +128,49 @@ def repair_table(durations: list[float], folder: str) -> None:
     print("   aims: 10^5 rows x 7 joints < 60 s CPU and < 2 GB peak; the 20k case no slower than before")
 
 
+def ellipsoid_table(counts: list[int], energy_samples: int) -> None:
+    """The chordal SDP (CI section 3.1) posed in Drake's MathematicalProgram and solved by Drake's bundled
+    Clarabel, against the same data handed to the pip clarabel package (faer), same process; CPU seconds
+    of the solve (the pip build may use 2 threads) and the trace; the closed-form energy bound beside it."""
+    from robust_drake.experiments.calafiore import simulate_identification
+    from robust_drake.regressor import imi_scara_regressor
+    from robust_drake.uncertainty.ellipsoid import solve_ellipsoid
+    from robust_drake.uncertainty.regression import CI_BOUNDS, build_uncertainty_model
+
+    print("\n4. Confidence ellipsoid (IMI SCARA, CI bounds), chordal SDP: Drake MathematicalProgram + bundled "
+          "Clarabel vs pip clarabel directly (CPU s of solve_ellipsoid: build, solve, 200-draw certificate / trace)")
+    print(f"{'samples':>8s} {'drake/clarabel':>22s} {'direct/clarabel':>22s} {'drake/direct':>12s}")
+
+    def model_of(n):
+        d = simulate_identification(n, seed=0)
+        return build_uncertainty_model(imi_scara_regressor, d["q"], d["qd"], d["qdd"], d["tau"], CI_BOUNDS)
+
+    for n in counts:
+        model, row = model_of(n), {}
+        for backend in ("drake", "direct"):
+            c = time.process_time()
+            r = solve_ellipsoid(model, formulation="chordal", backend=backend, certify_draws=200)
+            row[backend] = (time.process_time() - c, r.trace)
+        (cd, td), (cx, tx) = row["drake"], row["direct"]
+        print(f"{n:8d} {cd:12.1f} / {td:8.3f} {cx:12.1f} / {tx:8.3f} {cd / cx:12.2f}")
+    if energy_samples:
+        model = model_of(energy_samples)
+        c = time.process_time()
+        r = solve_ellipsoid(model, formulation="energy", certify_draws=200)
+        print(f"{energy_samples:8d} energy bound (closed form, no SDP): {time.process_time() - c:.1f} s CPU, trace "
+              f"{r.trace:.3f} (BUILD_NOTES: 2.2-4x the SDP's)")
+    print("   aims: Drake no slower than the solver called directly; 1000 samples SDP-tight < 30 s")
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=2.0, help="simulated seconds per loop run")
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--repair", default="20,100", help="log durations [s] of the repair rows ('' = none)")
     ap.add_argument("--repair-dir", default=None, help="folder for the repair logs (kept and reused between runs)")
-    ap.add_argument("--skip", default="", help="comma list of parts to skip: regressor, loops, repair")
+    ap.add_argument("--ellipsoid", default="30,100", help="sample counts of the chordal SDP rows ('' = none)")
+    ap.add_argument("--energy-samples", type=int, default=1000, help="samples of the energy-bound row (0 = none)")
+    ap.add_argument("--skip", default="", help="comma list of parts to skip: regressor, loops, repair, ellipsoid")
     a = ap.parse_args()
     skip = {s for s in a.skip.split(",") if s}
     print(f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS')}; cpu count {os.cpu_count()}; "
@@ -145,6 +184,8 @@ def main():
 
         folder = a.repair_dir or tempfile.mkdtemp(prefix="bench_speed_")
         repair_table([float(x) for x in a.repair.split(",")], folder)
+    if "ellipsoid" not in skip and (a.ellipsoid or a.energy_samples):
+        ellipsoid_table([int(x) for x in a.ellipsoid.split(",") if x], a.energy_samples)
 
 
 if __name__ == "__main__":
