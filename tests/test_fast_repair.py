@@ -404,3 +404,26 @@ def test_qr_factor_in_row_blocks_equals_the_qr_of_the_joined_columns(reg):
         fast = consistent_identification(reg, ROBOT, None, None, n_extra, R_full=cache.qr_r(effects, w, left=left))
         slow = consistent_identification(reg, ROBOT, AA, b, n_extra)
         assert np.allclose(fast.theta, slow.theta, rtol=1e-5, atol=1e-6 * np.abs(slow.theta).max())
+
+
+def test_span_basis_in_row_blocks_equals_lstsq_on_filtered_rigid_body_columns(reg):
+    """The block-wise SpanBasis (R by incremental QR, semi-normal equations with a refinement step)
+    on real, unscaled, filtered rigid-body columns (a non-contiguous view of the cache's base, several
+    blocks) gives lstsq's minimum-norm direction and residual, for effect columns in and out of the span."""
+    from robust_drake.model_repair.nominal import SpanBasis
+
+    cache = ColumnCache(_data(reg), reg)
+    p0 = len(reg.base_names)
+    Yb = cache.base[:, :, :p0]
+    A = Yb.reshape(-1, p0)
+    basis = SpanBasis.__new__(SpanBasis)
+    basis.BLOCK_ROWS = 128  # several blocks, the last one short
+    SpanBasis.__init__(basis, Yb)
+    inside = Yb @ np.random.default_rng(5).normal(size=(p0, 2))
+    for e in _candidates()[:5]:
+        Phi = np.concatenate([cache.effect(e)[0], inside], axis=2)
+        B = Phi.reshape(-1, Phi.shape[2])
+        d0 = np.linalg.lstsq(A, B, rcond=None)[0]
+        d, rel = basis.direction(Phi)
+        assert _close(d, d0, 1e-7), e
+        assert rel == pytest.approx(np.linalg.norm(B - A @ d0) / np.linalg.norm(B), rel=1e-7, abs=1e-12)

@@ -60,25 +60,59 @@ def shift_weights(theta0: np.ndarray, se: np.ndarray, sigma_rel: float = SIGMA_R
 
 
 class SpanBasis:
-    """Thin SVD of the stacked rigid-body columns, Yb = U diag(s) V^T, computed once.
+    """The stacked rigid-body columns Yb (rows x p0) prepared once for many span projections.
 
-    Every candidate's projection then costs one (rows x p0) x (p0 x k) product instead of a
-    least-squares solve of the whole (rows x p0) problem. Singular values below
-    ``eps * max(rows, p0) * s_max`` are dropped, the rank rule of ``numpy.linalg.lstsq``'s
-    default ``rcond``, so ``d`` is the same minimum-norm solution."""
+    Computed by row blocks, without the stacked copy or its thin SVD's (rows x p0) U (at 99.5k rows
+    x 7 joints the copy, U and the SVD's workspace were ~0.9 GB): R of Yb = Q R (incremental QR),
+    then the SVD of the small R = U_r diag(s) V^T, which has Yb's singular values and right vectors.
+    Singular values below ``eps * max(rows, p0) * s_max`` are dropped, the rank rule of
+    ``numpy.linalg.lstsq``'s default ``rcond``. A projection solves the semi-normal equations
+    d = V diag(s)^-2 V^T Yb^T Phi with one step of refinement on the residual (the accuracy of the
+    QR route for the conditioning of base columns), so ``d`` is the same minimum-norm solution, and
+    the residual ||Phi - Yb d|| is computed explicitly, block by block."""
+
+    BLOCK_ROWS = 4096
 
     def __init__(self, Yb: np.ndarray):
-        A = np.asarray(Yb, float).reshape(-1, Yb.shape[-1])
-        U, s, Vt = np.linalg.svd(A, full_matrices=False)
-        keep = s > np.finfo(float).eps * max(A.shape) * (s[0] if s.size else 0.0)
-        self.U, self.s, self.Vt = U[:, keep], s[keep], Vt[keep]
+        Yb = np.asarray(Yb, float)
+        self.Yb = Yb if Yb.ndim == 3 else Yb[:, None, :]
+        p0 = self.Yb.shape[2]
+        R = np.zeros((0, p0))
+        for r in self._runs():
+            R = np.linalg.qr(np.vstack([R, self.Yb[r].reshape(-1, p0)]), mode="r")
+        _, s, Vt = np.linalg.svd(R) if R.size else (None, np.zeros(0), np.zeros((0, p0)))
+        rows = self.Yb.shape[0] * self.Yb.shape[1]
+        keep = s > np.finfo(float).eps * max(rows, p0) * (s[0] if s.size else 0.0)
+        self.s, self.Vt = s[keep], Vt[keep]
+
+    def _runs(self):
+        N = self.Yb.shape[0]
+        return [slice(a, min(N, a + self.BLOCK_ROWS)) for a in range(0, N, self.BLOCK_ROWS)]
+
+    def _solve(self, g):
+        return self.Vt.T @ ((self.Vt @ g) / (self.s ** 2)[:, None])
+
+    def _at(self, B, d=None):
+        """Yb^T (B - Yb d) (d None: Yb^T B) and ||B - Yb d||^2, by row blocks."""
+        p0, k = self.Yb.shape[2], B.shape[2]
+        g, ss = np.zeros((p0, k)), 0.0
+        for r in self._runs():
+            A, Br = self.Yb[r].reshape(-1, p0), B[r].reshape(-1, k)
+            res = Br if d is None else Br - A @ d
+            g += A.T @ res
+            ss += float(np.sum(res * res))
+        return g, ss
 
     def direction(self, Phi: np.ndarray) -> tuple[np.ndarray, float]:
-        B = np.asarray(Phi, float).reshape(-1, Phi.shape[-1])
-        c = self.U.T @ B
-        d = self.Vt.T @ (c / self.s[:, None])
-        nb = np.linalg.norm(B)
-        rel = float(np.linalg.norm(B - self.U @ c) / nb) if nb > 0 else np.inf
+        B = np.asarray(Phi, float)
+        B = B.reshape(self.Yb.shape[0], self.Yb.shape[1], -1)
+        g, nb2 = self._at(B)
+        d = self._solve(g)
+        g, _ = self._at(B, d)
+        d = d + self._solve(g)  # one refinement step on the residual
+        _, res2 = self._at(B, d)
+        nb = np.sqrt(nb2)
+        rel = float(np.sqrt(res2) / nb) if nb > 0 else np.inf
         return d, rel
 
 
