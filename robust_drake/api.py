@@ -64,7 +64,10 @@ def simulate(config: "ClosedLoopConfig | None" = None, duration: float | None = 
         raise RobustDrakeError(f"simulate: give either a ClosedLoopConfig or fields, not both "
                                f"(got {sorted(fields)})")
     if config is None:
-        config = _Config(**fields)
+        # the duration is a field of the loop (SP1/SP2's sampled epsilon rule reads it), so the
+        # keyword form and rd.simulate(ClosedLoopConfig(duration=...)) build the same loop
+        config = _Config(**fields, **({} if duration is None else {"duration": duration}))
+        duration = None
     return _simulate(config, duration)
 
 

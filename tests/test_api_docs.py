@@ -151,3 +151,16 @@ def test_flat_api_runs_the_papers_jobs(tmp_path):
     # floor, validates 1.8 % worse once the elbow's weight rises)
     assert ("position_dependent", 1) in [(e["kind"], e["joint"]) for e in rep["effects"]]
     assert rep["final"]["rms_validate"][1] < 0.9 * rep["baseline"]["rms_validate"][1]  # elbow residual [N m]
+
+
+def test_simulate_duration_keyword_builds_the_same_loop_as_the_config_field():
+    """rd.simulate(duration=T, **fields) == rd.simulate(ClosedLoopConfig(duration=T, **fields)):
+    SP1's sampled boundary-layer rule reads the loop's duration, so both forms must carry it."""
+    import numpy as np
+
+    import robust_drake as rd
+
+    kw = dict(robot="siciliano_2link", controller="sp1", trajectory="sine")
+    a = rd.simulate(**kw, duration=0.3)
+    b = rd.simulate(rd.ClosedLoopConfig(**kw, duration=0.3))
+    assert np.array_equal(a.q, b.q) and np.array_equal(a.u, b.u)

@@ -75,6 +75,11 @@ class IdentifiedModel:
         ``"least_squares"`` or ``"instrumental_variables"``.
     data : dict
         Summary of the fit data (samples, joints, dt, filter, covariance kind, ...).
+    consistent : dict or None
+        The repair's physically consistent fit of the same model (``identification.consistency``:
+        per-link mass [kg], centre of mass [m], inertia about the link origin [kg m^2], reflected
+        rotor inertias, friction and effect coefficients); None when not computed. What
+        :meth:`to_urdf` exports.
     """
 
     robot: str
