@@ -69,7 +69,8 @@ class SpanBasis:
     ``numpy.linalg.lstsq``'s default ``rcond``. A projection solves the semi-normal equations
     d = V diag(s)^-2 V^T Yb^T Phi with one step of refinement on the residual (the accuracy of the
     QR route for the conditioning of base columns), so ``d`` is the same minimum-norm solution, and
-    the residual ||Phi - Yb d|| is computed explicitly, block by block."""
+    the residual ||Phi - Yb d|| is the first solve's, computed block by block, corrected for the
+    refinement step (two passes over Yb per projection)."""
 
     BLOCK_ROWS = 4096
 
@@ -84,6 +85,7 @@ class SpanBasis:
         rows = self.Yb.shape[0] * self.Yb.shape[1]
         keep = s > np.finfo(float).eps * max(rows, p0) * (s[0] if s.size else 0.0)
         self.s, self.Vt = s[keep], Vt[keep]
+        self.G = R.T @ R  # = Yb^T Yb
 
     def _runs(self):
         N = self.Yb.shape[0]
@@ -108,9 +110,11 @@ class SpanBasis:
         B = B.reshape(self.Yb.shape[0], self.Yb.shape[1], -1)
         g, nb2 = self._at(B)
         d = self._solve(g)
-        g, _ = self._at(B, d)
-        d = d + self._solve(g)  # one refinement step on the residual
-        _, res2 = self._at(B, d)
+        g, res2 = self._at(B, d)  # Yb^T r and ||r||^2 of the first solve
+        delta = self._solve(g)
+        d = d + delta  # one refinement step on the residual
+        # ||r - Yb delta||^2 = ||r||^2 - 2 delta^T Yb^T r + delta^T (R^T R) delta: no third pass
+        res2 = max(res2 - 2.0 * float(np.sum(delta * g)) + float(np.sum(delta * (self.G @ delta))), 0.0)
         nb = np.sqrt(nb2)
         rel = float(np.sqrt(res2) / nb) if nb > 0 else np.inf
         return d, rel
