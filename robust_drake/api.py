@@ -386,3 +386,60 @@ def run_montecarlo(robot: str = "d2r2", controllers: Sequence[str] = ("sp1", "sp
                 seed=seed)
     scenarios = mc.montecarlo_scenarios(robot, list(controllers), thetas, base=base, tags=tags)
     return mc.run_montecarlo(scenarios, out=out, workers=workers, progress=progress)
+
+
+def list_robots() -> "list[dict]":
+    """The shipped robots (``robust-drake list robots``).
+
+    Returns
+    -------
+    list of dict
+        One per robot: ``name``, ``joints``, ``loads``, ``sample_rate`` [Hz] (None: the 2500 Hz
+        default), ``torque_limits`` [N m], ``gravity``, ``plane`` and a one-line ``summary``.
+    """
+    from robust_drake.registry import list_robots as _list
+
+    return _list()
+
+
+def list_controllers() -> "list[dict]":
+    """The controllers ``ClosedLoopConfig(controller=...)`` accepts (``robust-drake list controllers``).
+
+    Names are accepted in any case and by their paper names (``"SP1"``, ``"LG+"``).
+
+    Returns
+    -------
+    list of dict
+        One per controller: ``name``, ``paper_name``, ``summary``, ``paper`` (equations) and
+        ``parameters`` (``[{"name", "unit", "description"}]``, the keys of ``controller_params``).
+    """
+    from robust_drake.registry import catalog
+
+    return catalog()["controllers"]
+
+
+def list_trajectories() -> "list[dict]":
+    """The references ``ClosedLoopConfig(trajectory=...)`` accepts (``robust-drake list trajectories``).
+
+    Returns
+    -------
+    list of dict
+        One per trajectory: ``name``, ``paper_name``, ``summary`` and ``parameters``
+        (``[{"name", "unit", "description"}]``, the keys of ``trajectory_params``).
+    """
+    from robust_drake.registry import catalog
+
+    return catalog()["trajectories"]
+
+
+def list_observers() -> "list[dict]":
+    """The velocity estimators ``ClosedLoopConfig(observer=...)`` accepts (``robust-drake list observers``).
+
+    Returns
+    -------
+    list of dict
+        One per observer: ``name``, ``summary`` and ``parameters`` (the keys of ``observer_params``).
+    """
+    from robust_drake.registry import catalog
+
+    return catalog()["observers"]

@@ -39,6 +39,7 @@ COMMAND_MODULES = [
     "robust_drake.commands.calafiore",
     "robust_drake.commands.epsilon_search",
     "robust_drake.commands.logs_to_control",
+    "robust_drake.commands.list",
 ]
 
 

@@ -301,8 +301,12 @@ def montecarlo_scenarios(robot: str, controllers: Sequence[str], thetas,
 
 
 def run_montecarlo(scenarios: Iterable[Scenario], **batch_kwargs):
-    """:func:`robust_drake.batch.run_batch` on the draws (same options)."""
+    """:func:`robust_drake.batch.run_batch` on the draws (same options; progress labelled
+    "montecarlo")."""
     from robust_drake.batch import run_batch
+
+    if batch_kwargs.get("progress", True) is True:
+        batch_kwargs["progress"] = "montecarlo"
 
     return run_batch(list(scenarios), **batch_kwargs)
 

@@ -352,19 +352,32 @@ def run_logs_to_control(cfg: LogsToControlConfig | None = None, out_dir: str | N
     from robust_drake.experiments.ultimate_bound import bound_region
     from robust_drake.models import make_plant
 
+    from robust_drake.log import progress_bar
+
     cfg = cfg or LogsToControlConfig()
     check_arm(cfg.robot)
     rng = np.random.default_rng(cfg.seed)
+    bar = progress_bar(cfg.draws + 3, "logs-to-control", unit="steps")  # identify, design, draws, PD
+    bar.set_postfix_str("identifying")
     model, theta0, P, reg, truth, truth_r = identified_set(cfg, out_dir)
+    bar.update(1)
+    bar.set_postfix_str("designing CI eq. 15, drawing plants")
     plant = make_plant(cfg.robot)
     params, K, Lam, layer, q_ref = design_eq15(cfg, reg, theta0, P)
     region, region_info = bound_region(plant, q_ref, np.random.default_rng(cfg.seed + 1))
     plants, rejected = draw_plants(reg, theta0, P, cfg.draws, rng, cfg.boundary_share)
-    draws = [_run_draw(cfg, d, params, K, Lam, region, plant, theta0, P, layer["previous_rule_epsilon"])
-             for d in plants]
+    bar.update(1)
+    draws = []
+    for i, d in enumerate(plants):
+        bar.set_postfix_str(f"draw {i + 1}/{len(plants)}")
+        draws.append(_run_draw(cfg, d, params, K, Lam, region, plant, theta0, P, layer["previous_rule_epsilon"]))
+        bar.update(1)
     if region_info["kind"] == "tube":
         region_info["consistent"] = bool(all(max(d["bound_per_joint"]) <= region_info["delta"] for d in draws))
+    bar.set_postfix_str("PD on the URDF arm")
     _, pd = track_plant(cfg, "pd", {"K": K.tolist(), "Lambda": Lam.tolist()}, lambda plant, ctx: None)
+    bar.update(1)
+    bar.close()
     pd_err = float(np.max(np.abs(pd.q - pd.q_d)[pd.t >= cfg.transient]))
     return {"robot": cfg.robot, "alpha": cfg.alpha, "samples": int(model.data.get("samples", 0)),
             "estimator": model.estimator,

@@ -270,7 +270,9 @@ def run_repair(fit_paths, options: RepairOptions, validate_paths=None, out_dir=N
     from robust_drake.identification import input_checks as IC
     from robust_drake.model_repair import stages as S
 
-    from robust_drake.log import progress_callback
+    from robust_drake.log import StageTimer, progress_callback
+
+    S = StageTimer(S, total=8, desc="repair", enabled=progress is None)  # a bar (terminal, notebook) or a line per stage; -v: timings
 
     log = progress_callback(progress)  # None: the "robust_drake" logger at INFO
     opts = options
