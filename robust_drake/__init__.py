@@ -50,6 +50,9 @@ _LAZY = {
     "repair_figure": "robust_drake.plotting",
     "render_diagram": "robust_drake.viz",
     "add_meshcat": "robust_drake.viz",
+    "save_replay": "robust_drake.viz",
+    "animate_planar": "robust_drake.viz",
+    "save_animation": "robust_drake.viz",
     "set_log_level": "robust_drake.log",
     "get_logger": "robust_drake.log",
 }

@@ -486,8 +486,8 @@ def validate_scenarios(scenarios: Iterable[Scenario]) -> None:
             problems.append(f"{where}: unknown robot {s.robot!r} (known: {', '.join(sorted(ROBOTS))})")
         for kind, name in (("controller", s.controller), ("observer", s.observer),
                            ("trajectory", s.trajectory)):
-            if name not in registry.names(kind):
-                problems.append(f"{where}: unknown {kind} {name!r} "
+            if registry.canonical_or_same(kind, name) not in registry.names(kind):  # any case, paper names
+                problems.append(f"{where}: unknown {kind} {name!r}{registry.did_you_mean(str(name), registry.names(kind))} "
                                 f"(known: {', '.join(registry.names(kind))})")
         if not (isinstance(s.rate, (int, float)) and math.isfinite(s.rate) and s.rate > 0):
             problems.append(f"{where}: rate must be a positive number of Hz, got {s.rate!r}")
