@@ -174,3 +174,19 @@ def test_paper_names_and_any_case_are_accepted():
     assert rd.ClosedLoopConfig(robot="D2R2", trajectory="CPT").robot == "d2r2"
     assert {c["name"] for c in rd.list_controllers()} >= {"sp1", "sp2", "zc", "lgplus"}
     assert any(r["name"] == "panda" and r["joints"] == 7 for r in rd.list_robots())
+
+
+def test_every_subcommand_has_examples_that_parse():
+    import shlex
+
+    from robust_drake.cli import EXAMPLES, RUNTIMES, build_parser
+
+    parser = build_parser()
+    sub = next(a for a in parser._actions if a.__class__.__name__ == "_SubParsersAction")
+    assert set(sub.choices) <= set(EXAMPLES)
+    for name, p in sub.choices.items():
+        assert "examples:\n  robust-drake " + name in p.format_help(), name
+        for line in EXAMPLES[name]:
+            argv = shlex.split(line.format(**RUNTIMES).split("#")[0].split("|")[0].split(">")[0])
+            assert argv[0] == "robust-drake" and argv[1] == name
+            parser.parse_args(argv[1:])  # SystemExit on an option that does not exist

@@ -8,18 +8,11 @@ from robust_drake.cli import add_output_flags, format_table, print_json
 
 WHAT = ("robots", "controllers", "observers", "trajectories", "plant-effects")
 
-EXAMPLES = """examples:
-  robust-drake list                       # everything, as tables
-  robust-drake list controllers           # the controllers with their parameters and units
-  robust-drake list --json | jq '.robots[].name'
-"""
 
 
 def register(sub):
-    import argparse
-
     p = sub.add_parser("list", help="the robots, controllers, observers, trajectories and effects by name",
-                       description=__doc__, epilog=EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter)
+                       description=__doc__)
     p.add_argument("what", nargs="*", metavar="WHAT",
                    help=f"what to list: {', '.join(WHAT)} (default: all)")
     add_output_flags(p)
