@@ -212,7 +212,6 @@ def repair(fit: str | Sequence[str], robot: str, *, validate: str | Sequence[str
     from robust_drake.identification.data import DEFAULT_CUTOFF_HZ
     from robust_drake.model_repair.pipeline import RepairOptions, run_repair
     from robust_drake.model_repair.selection import MIN_GAIN
-    from robust_drake.log import progress_callback
 
     fits = [fit] if isinstance(fit, (str, os.PathLike)) else list(fit)
     vals = None if validate is None else ([validate] if isinstance(validate, (str, os.PathLike))
@@ -228,7 +227,7 @@ def repair(fit: str | Sequence[str], robot: str, *, validate: str | Sequence[str
             raise RobustDrakeError(f"sigma_rel must be > 0, got {sigma_rel}")
         opts.sigma_rel = sigma_rel
     return run_repair(fits, opts, validate_paths=vals, out_dir=None if out is None else str(out),
-                      progress=progress_callback(progress), overwrite=overwrite)
+                      progress=progress, overwrite=overwrite)  # None: logger + stage bar
 
 
 def ellipsoid(data: Mapping[str, "np.ndarray"] | None = None, *, samples: int = 5,

@@ -39,7 +39,7 @@ from collections import OrderedDict
 from typing import Any, Iterable, Sequence
 
 from robust_drake.divergence import TRACKING_ERROR_LIMIT
-from robust_drake.errors import RobustDrakeError
+from robust_drake.errors import RobustDrakeError, option_name
 from robust_drake.parallel import iter_parallel
 from robust_drake.scenario import Scenario, dedupe, spec_fingerprint, validate_scenarios
 
@@ -277,8 +277,8 @@ class ResultStore:
             if not force:
                 raise RobustDrakeError(
                     f"{self.path} holds results of a different batch (fingerprint {existing}, "
-                    f"this batch {fingerprint}); choose another --out or pass --force to "
-                    "overwrite it")
+                    f"this batch {fingerprint}); choose another {option_name('--out', 'out= file')} or pass "
+                    f"{option_name('--force', 'force=True')} to overwrite it")
         if force:  # start over, whatever the file held
             self._remove_all()
         self.path.parent.mkdir(parents=True, exist_ok=True)

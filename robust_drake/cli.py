@@ -299,6 +299,9 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(glue_negative_values(parser, sys.argv[1:] if argv is None else list(argv)))
     configure_logging(args.verbosity)
+    from robust_drake.errors import set_caller
+
+    token = set_caller("cli")  # messages name --force, --out (not overwrite=True, out=)
     try:
         status = args.func(args)
     except RobustDrakeError as exc:
@@ -307,6 +310,10 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
+    finally:
+        from robust_drake.errors import _CALLER
+
+        _CALLER.reset(token)
     return int(status or 0)
 
 

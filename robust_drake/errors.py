@@ -17,3 +17,21 @@ class SolverError(RobustDrakeError):
 
 class DataError(RobustDrakeError):
     """Measured data that cannot be used as given (missing columns, NaNs, units...)."""
+
+
+# --- messages in the caller's words: "--force" on the command line, "overwrite=True" in Python ---
+import contextvars as _contextvars
+
+_CALLER = _contextvars.ContextVar("robust_drake_caller", default="python")
+
+
+def set_caller(kind: str):
+    """Mark the current context as called from ``"cli"`` or ``"python"`` (the command line sets
+    ``"cli"``); returns the token for :meth:`contextvars.ContextVar.reset`."""
+    return _CALLER.set(kind)
+
+
+def option_name(cli: str, python: str) -> str:
+    """The name of an option as the caller spells it: ``cli`` (``"--force"``) when the command
+    line runs, else ``python`` (``"overwrite=True"``)."""
+    return cli if _CALLER.get() == "cli" else python

@@ -190,3 +190,17 @@ def test_every_subcommand_has_examples_that_parse():
             argv = shlex.split(line.format(**RUNTIMES).split("#")[0].split("|")[0].split(">")[0])
             assert argv[0] == "robust-drake" and argv[1] == name
             parser.parse_args(argv[1:])  # SystemExit on an option that does not exist
+
+
+def test_messages_name_the_option_as_the_caller_spells_it(tmp_path, capsys):
+    """An earlier report is refused with --force on the command line, overwrite=True from Python."""
+    import robust_drake as rd
+    from robust_drake.cli import main
+
+    (tmp_path / "report.json").write_text("{}")
+    with pytest.raises(rd.RobustDrakeError) as py:
+        rd.repair(str(tmp_path / "none.csv"), robot="d2r2", out=tmp_path)
+    assert "overwrite=True" in str(py.value) and "--force" not in str(py.value)
+    assert main(["repair", str(tmp_path / "none.csv"), "--robot", "d2r2", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "--force" in err and "overwrite=True" not in err

@@ -32,6 +32,14 @@ def register(subparsers):
 
 
 def plot_study(out, directory):
+    """Analogs of CI figs. 3-6 in the package's figure style (:func:`_plot_study`)."""
+    from robust_drake.plotting import style
+
+    with style():
+        return _plot_study(out, directory)
+
+
+def _plot_study(out, directory):
     """Analogs of CI figs. 3-6: torque reconstruction, reference, nominal and robust tracking
     errors (same y-scale, so the two laws compare at a glance), torques; returns the paths written."""
     import numpy as np
@@ -47,15 +55,17 @@ def plot_study(out, directory):
         ax.plot(rec["t"], rec["tau_rec"][:, j], "-", label="reconstructed (theta0)")
         ax.plot(rec["t_samples"], rec["tau_samples"][:, j], "o", mfc="none", label="n_m samples used")
         ax.set(ylabel=f"tau{j + 1} [N m]")
-    axes[0].set_title("CI fig. 3: measured vs reconstructed torque (theta0 from 5 samples)", fontsize=10)
+    axes[0].set_title("CI fig. 3: measured vs reconstructed torque (theta0 from 5 samples)")
     axes[1].set(xlabel="t [s]")
-    axes[0].legend()
+    axes[0].legend(loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    fig.align_ylabels(axes)
+    fig.tight_layout()
     fig3 = os.path.join(str(directory), "fig3_torque_reconstruction.png")
-    fig.savefig(fig3)
+    fig.savefig(fig3, bbox_inches="tight")
     logs = out["runs"][0]["_logs"]
     t = logs["nominal"]["t"]
     joints = ["joint 1", "joint 2"]
-    legend = dict(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
+    legend = dict(loc="upper left", bbox_to_anchor=(1.01, 1.0))
     paths = [os.path.join(str(directory), f) for f in
              ("fig4_reference.png", "fig5_nominal_errors.png", "fig6_robust_errors.png", "torques.png")]
     fig, ax = subplots(figsize=(7.5, 3.5))

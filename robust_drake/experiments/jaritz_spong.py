@@ -376,43 +376,34 @@ def _column_limits(axes, groups, L) -> None:
             ax.set_ylim(lo - (0 if c == 1 else pad), hi + 2.2 * pad if c == 1 else hi + pad)
 
 
-def plot_table(table: int, rows: list[dict], out_dir) -> pathlib.Path:
-    """Figure analog for a table: per controller, joint errors [rad], task-space error [mm] and
-    torques [N m] against t [s], in separate columns whose y-limits are shared by all rows (set on
-    the samples the metrics measure: the circle's first second is shaded and its transient
-    clipped), so controllers compare row to row; SP1 and SP2 (nearly identical) share a row, SP1
-    solid and SP2 dashed in darker colours on top; each row states its simulated task-space
-    criteria beside the published ones (JS tables 2-7).
+def table_figure(table: int, rows: list[dict]):
+    """The figure analog of a table as a matplotlib ``Figure``: per controller, joint errors [rad],
+    task-space error [mm] and torques [N m] against t [s], in separate columns whose y-limits are
+    shared by all rows (set on the samples the metrics measure: the circle's first second is
+    shaded and its transient clipped), so controllers compare row to row; SP1 and SP2 (nearly
+    identical) share a row, SP1 solid and SP2 dashed in darker colours on top; each row states its
+    simulated task-space criteria beside the published ones (JS tables 2-7).
 
     Tables 5 and 7 are the runs of JS figures 4-7 and 8-11 (maximum load, compensation)."""
-    from robust_drake.models import get_arm
-    from robust_drake.plotting import style, subplots
-
-    out_dir = pathlib.Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
     rows = [r for r in rows if "logs" in r]
     if not rows:
-        raise RobustDrakeError("plot_table needs rows run with logs=True")
-    L = get_arm("d2r2").link_lengths
-    groups = _table_groups(rows)
-    with style():
-        fig, axes = subplots(len(groups), 3, figsize=(16, 3.1 * len(groups) + 0.9), squeeze=False, sharex=True)
-        for ax_row, group in zip(axes, groups):
-            _plot_group(ax_row, table, group, L)
-        _column_limits(axes, groups, L)
-        for ax in axes[-1]:
-            ax.set_xlabel("t [s]")
-        dur = max(float(np.asarray(r["logs"]["t"])[-1]) for r in rows)
-        title = TABLES[table]["title"] if table in TABLES else str(table)
-        fig.suptitle(f"Table {table}: {title} (simulated D2R2, {dur:.3g} s per run; y-limits shared by all rows, "
-                     "set after the shaded interval the metrics skip)")
-        fig.tight_layout()
+        raise RobustDrakeError("table_figure needs rows run with logs=True")
+    dur = max(float(np.asarray(r["logs"]["t"])[-1]) for r in rows)
+    title = TABLES[table]["title"] if table in TABLES else str(table)
+    return comparison_figure(rows, f"Table {table}: {title} (simulated D2R2, {dur:.3g} s per run; y-limits shared "
+                                   "by all rows, set after the shaded interval the metrics skip)", table=table)
+
+
+def plot_table(table: int, rows: list[dict], out_dir) -> pathlib.Path:
+    """Write :func:`table_figure` to ``out_dir/table<N>.png``; returns the path."""
+    out_dir = pathlib.Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
     path = out_dir / f"table{table}.png"
-    fig.savefig(path, dpi=90)
+    table_figure(table, rows).savefig(path, dpi=90)
     return path
 
 
-def comparison_figure(rows: list[dict], title: str):
+def comparison_figure(rows: list[dict], title: str, table=None):
     """The layout of :func:`plot_table` for any rows run with logs (``run_one``): SP1 and SP2 in one
     row, one row per other controller; returns the ``Figure`` (the demo's CPT figures)."""
     from robust_drake.models import get_arm
@@ -423,7 +414,7 @@ def comparison_figure(rows: list[dict], title: str):
     with style():
         fig, axes = subplots(len(groups), 3, figsize=(16, 3.1 * len(groups) + 0.9), squeeze=False, sharex=True)
         for ax_row, group in zip(axes, groups):
-            _plot_group(ax_row, None, group, L)
+            _plot_group(ax_row, table, group, L)
         _column_limits(axes, groups, L)
         for ax in axes[-1]:
             ax.set_xlabel("t [s]")
@@ -464,31 +455,38 @@ def sweep_rate(controllers=("sp1", "sp2", "zc"), rates=(250, 500, 1000, 2500, 50
     return rows
 
 
-def plot_sweep(rows: list[dict], path) -> pathlib.Path:
-    from robust_drake.plotting import subplots
+def sweep_figure(rows: list[dict]):
+    """Section 11 as a ``Figure``: |error_task| [m] and chattering (torque total variation per
+    second [N m/s]) against the sample rate [Hz], one line per controller (paper names)."""
+    from robust_drake.plotting import style, subplots
 
+    with style():
+        fig, (a1, a2) = subplots(1, 2, figsize=(10.5, 4.0))
+        for c in dict.fromkeys(r["controller"] for r in rows):
+            rs = sorted((r for r in rows if r["controller"] == c), key=lambda r: r["rate"])
+            rate = [r["rate"] for r in rs]
+            a1.semilogx(rate, [r["error_task"] for r in rs], "o-", label=LABELS.get(c, c))
+            a2.loglog(rate, [r["chattering"] for r in rs], "o-", label=LABELS.get(c, c))
+        rates = sorted({r["rate"] for r in rows})
+        for ax in (a1, a2):
+            ax.set_xticks(rates)
+            ax.set_xticklabels([f"{x:g}" for x in rates])
+            ax.minorticks_off()
+            ax.set_xlabel("sample rate [Hz]")
+        a1.set_ylabel("|error_task| [m]")
+        a2.set_ylabel("torque total variation [N m/s]")
+        a1.legend()
+        a1.set_title("tracking (JS eq. 58)")
+        a2.set_title("chattering")
+        fig.tight_layout()
+    return fig
+
+
+def plot_sweep(rows: list[dict], path) -> pathlib.Path:
+    """Write :func:`sweep_figure` to ``path`` (PNG)."""
     path = pathlib.Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig, (a1, a2) = subplots(1, 2, figsize=(10, 3.8))
-    for c in dict.fromkeys(r["controller"] for r in rows):
-        rs = sorted((r for r in rows if r["controller"] == c), key=lambda r: r["rate"])
-        rate = [r["rate"] for r in rs]
-        a1.semilogx(rate, [r["error_task"] for r in rs], "o-", label=LABELS.get(c, c))
-        a2.loglog(rate, [r["chattering"] for r in rs], "o-", label=LABELS.get(c, c))
-    rates = sorted({r["rate"] for r in rows})
-    for ax in (a1, a2):
-        ax.set_xticks(rates)
-        ax.set_xticklabels([f"{x:g}" for x in rates])
-        ax.minorticks_off()
-    a1.set_xlabel("sample rate [Hz]")
-    a1.set_ylabel("|error_task| [m]")
-    a2.set_xlabel("sample rate [Hz]")
-    a2.set_ylabel("torque total variation [N m / s]")
-    a1.legend()
-    a1.set_title("tracking (JS eq. 58)")
-    a2.set_title("chattering")
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    sweep_figure(rows).savefig(path, dpi=90)
     return path
 
 
@@ -518,23 +516,30 @@ def friction_curve(qd_max: float = 3.0, points: int = 601) -> dict:
             "coulomb": list(D2R2_COULOMB), "viscous": list(D2R2_VISCOUS), "k_hat": list(D2R2_K_HAT)}
 
 
-def plot_friction_curve(path, qd_max: float = 3.0) -> pathlib.Path:
-    """Write the JS fig. 3 analog to ``path`` (png)."""
-    from robust_drake.plotting import subplots
+def friction_figure(qd_max: float = 3.0):
+    """JS fig. 3 analog as a ``Figure``: friction torque F_j [N m] against qd_j [rad/s] of the
+    simulated plant, its Coulomb approximation (eqs. 89-90) and the Coulomb + viscous one."""
+    from robust_drake.plotting import style, subplots
 
     c = friction_curve(qd_max)
+    with style():
+        fig, axes = subplots(1, 2, figsize=(10.5, 4.0))
+        for j, ax in enumerate(axes):
+            ax.plot(c["qd"], c["plant"][:, j], "-", lw=1.6, label="plant friction (eq. 86)")
+            ax.plot(c["qd"], c["coulomb_hat"][:, j], ":", lw=1.6, label="Coulomb approximation (eqs. 89-90)")
+            ax.plot(c["qd"], c["coulomb_viscous_hat"][:, j], "--", label="Coulomb + viscous compensation")
+            ax.set(xlabel=f"qd{j + 1} [rad/s]", ylabel=f"F{j + 1} [N m]", title=f"joint {j + 1}")
+        axes[0].legend(fontsize=8.5)
+        fig.suptitle("Friction torque and its approximation (cf. JS fig. 3, simulated D2R2 parameters)")
+        fig.tight_layout()
+    return fig
+
+
+def plot_friction_curve(path, qd_max: float = 3.0) -> pathlib.Path:
+    """Write the JS fig. 3 analog (:func:`friction_figure`) to ``path`` (png)."""
     path = pathlib.Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig, axes = subplots(1, 2, figsize=(10, 3.8))
-    for j, ax in enumerate(axes):
-        ax.plot(c["qd"], c["plant"][:, j], "-", label="plant friction (eq. 86)")
-        ax.plot(c["qd"], c["coulomb_hat"][:, j], ":", label="Coulomb approximation (eqs. 89-90)")
-        ax.plot(c["qd"], c["coulomb_viscous_hat"][:, j], "--", lw=0.8, label="Coulomb + viscous compensation")
-        ax.set(xlabel=f"qd{j + 1} [rad/s]", ylabel=f"F{j + 1} [N m]", title=f"joint {j + 1}")
-    axes[0].legend(fontsize=7)
-    fig.suptitle("Friction torque and its approximation (cf. JS fig. 3, simulated D2R2 parameters)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    friction_figure(qd_max).savefig(path, dpi=90)
     return path
 
 

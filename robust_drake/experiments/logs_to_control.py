@@ -412,6 +412,10 @@ def verdict(draws, region_info) -> dict:
             "large for this arm: a longer --duration or a lower --noise-fraction gives a smaller one)"}
 
 
+from robust_drake.plotting import styled  # noqa: E402 - the shared figure style
+
+
+@styled
 def plot_logs_to_control(out: dict, path) -> str:
     """Bar figure of a :func:`run_logs_to_control` result: per draw (boundary / inside, Mahalanobis
     radius) the largest joint error after the transient and its predicted ultimate bound [rad],
@@ -427,11 +431,11 @@ def plot_logs_to_control(out: dict, path) -> str:
     ax.bar(x + 0.2, [r["bound"] for r in d], 0.4, label="predicted ultimate bound")
     ax.axhline(out["pd_max_error"], color="C3", ls="--", lw=1, label="PD, URDF arm")
     ax.set_yscale("log")
-    ax.set_xticks(x, [f"{r['kind'][0]} {r['radius']:.2f}" for r in d], fontsize=7)
+    ax.set_xticks(x, [f"{r['kind'][0]} {r['radius']:.2f}" for r in d], fontsize=8.5)
     ax.set_xlabel("draw (b = boundary, i = inside; Mahalanobis radius)")
     ax.set_ylabel("[rad]")
     ax.set_title(f"{out['robot']}: CI eq. 15 from the identified {100 * (1 - out['alpha']):g} % set", fontsize=9)
-    ax.legend(fontsize=7)
+    ax.legend(fontsize=8.5)
     fig.tight_layout()
     path = pathlib.Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

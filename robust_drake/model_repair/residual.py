@@ -220,7 +220,7 @@ def _reversal_panel(ax, data: IdentData, series) -> None:
     ax.axvline(0, color="0.5", lw=0.6)
     ax.set(xlabel="time from qd_j reversal [s]", ylabel="mean residual r_j [N m]",
            title="around velocity reversals")
-    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0), frameon=False)
+    ax.legend(fontsize=8.5, loc="upper left", bbox_to_anchor=(1.02, 1.0), frameon=False)
 
 
 def residual_figure(data: IdentData, residual: np.ndarray, title: str = "residual",
@@ -251,6 +251,13 @@ def residual_figure(data: IdentData, residual: np.ndarray, title: str = "residua
     matplotlib.figure.Figure
         Detached from pyplot.
     """
+    from robust_drake.plotting import style
+
+    with style():
+        return _residual_figure(data, residual, title, other, labels)
+
+
+def _residual_figure(data, residual, title, other, labels):
     from robust_drake.plotting import subplots
 
     series = [(residual, labels[0], "tab:red")] + ([(other, labels[1], "tab:blue")] if other is not None else [])
