@@ -38,6 +38,7 @@ _LAZY = {
     "ellipsoid": "robust_drake.api",
     "run_batch": "robust_drake.api",
     "run_montecarlo": "robust_drake.api",
+    "default_gains": "robust_drake.api",
     "list_robots": "robust_drake.api",
     "list_controllers": "robust_drake.api",
     "list_trajectories": "robust_drake.api",

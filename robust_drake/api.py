@@ -442,3 +442,25 @@ def list_observers() -> "list[dict]":
     from robust_drake.registry import catalog
 
     return catalog()["observers"]
+
+
+def default_gains(ctx: Any) -> "tuple":
+    """The K [N m s/rad] and Lambda [1/s] gains the PD, SP1 and SP2 of a loop use by default.
+
+    JS section 8's diag(30, 10) and diag(50, 20) on the D2R2; on any other arm Lambda = 20 I and
+    K = 20 [1/s] diag(M(0)), so each joint's sliding variable r = e_dot + Lambda e decays at about
+    20 1/s under K alone. For a custom controller's factory: ``K, Lam = rd.default_gains(ctx)``.
+
+    Parameters
+    ----------
+    ctx : BuildContext
+        What a factory is called with (``ctx.robot``, ``ctx.load``, ``ctx.n``, ``ctx.period``).
+
+    Returns
+    -------
+    tuple
+        ``(K, Lambda)``, one entry per joint each.
+    """
+    from robust_drake.systems.controllers.spong import default_gains as _gains
+
+    return _gains(ctx)

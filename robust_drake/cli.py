@@ -85,7 +85,7 @@ EXAMPLES: dict[str, list[str]] = {
 }
 
 #: measured wall times quoted in the examples (and README), filled into EXAMPLES
-RUNTIMES = {"demo": "2 min", "montecarlo": "13 min on 2 cores", "repair": "20 s", "logs_to_control": "30 s"}
+RUNTIMES = {"demo": "1 min", "montecarlo": "11 min on 2 cores", "repair": "17 s", "logs_to_control": "35 s"}
 
 
 class HelpFormatter(argparse.HelpFormatter):

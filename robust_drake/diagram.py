@@ -448,6 +448,14 @@ class SimulationResult:
         return out
 
 
+def _debug_run(c, duration: float, step: float, wall: float) -> None:
+    """One DEBUG line (``-v``) per run: what ran, how many ticks, the integrator step, the wall time."""
+    from robust_drake.log import logger
+
+    logger.debug("simulated %s on %s: %.4g s (%d ticks at %g Hz, RK2 step %.3g ms) in %.3g s wall",
+                 block_label(c.controller), c.robot, duration, round(duration * c.rate), c.rate, 1e3 * step, wall)
+
+
 def _warn_if_unsampled(block, spec, rate) -> None:
     """Warn when a controller declares no periodic event: its output is then recomputed at every
     integrator step (a continuous controller), not sampled at ``rate`` Hz as the loop says."""
@@ -742,11 +750,7 @@ class ClosedLoop:
             text = str(exc).strip().splitlines()
             integrator_error = text[0] if text else type(exc).__name__
         wall = time.perf_counter() - wall0
-        from robust_drake.log import logger as _logger
-
-        _logger.debug("simulated %s on %s: %.4g s (%d ticks at %g Hz, RK2 step %.3g ms) in %.3g s wall",
-                      block_label(c.controller), c.robot, duration, round(duration * c.rate), c.rate,
-                      1e3 * self.period / steps, wall)
+        _debug_run(c, duration, self.period / steps, wall)
 
         t, logs = self._log_columns(context)
         X = logs["state"]

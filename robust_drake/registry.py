@@ -19,7 +19,7 @@ import importlib
 from dataclasses import dataclass
 from typing import Any, Callable
 
-from robust_drake.errors import RobustDrakeError
+from robust_drake.errors import RobustDrakeError, did_you_mean  # noqa: F401 - re-exported
 
 CONTROLLERS: dict[str, str] = {
     "pd": "robust_drake.systems.controllers.spong:make_pd",
@@ -239,20 +239,6 @@ def canonical_robot(robot):
         return robot
     key = robot.strip().lower()
     return key if key in ROBOTS else robot
-
-
-def did_you_mean(word: str, choices, n: int = 3) -> str:
-    """``" (did you mean 'sp1'?)"`` for the closest ``choices`` to ``word`` (difflib), or ``""``."""
-    import difflib
-
-    choices = [str(c) for c in choices]
-    close = difflib.get_close_matches(str(word), choices, n=n, cutoff=0.6) or difflib.get_close_matches(
-        str(word).lower(), [c.lower() for c in choices], n=n, cutoff=0.6)
-    close = [next(c for c in choices if c.lower() == m.lower()) for m in close]
-    close += [c for c in choices if len(str(word)) >= 2 and c.lower().startswith(str(word).lower()) and c not in close]
-    if not close:
-        return ""
-    return " (did you mean " + " or ".join(repr(c) for c in close) + "?)"
 
 
 def paper_name(name) -> str:

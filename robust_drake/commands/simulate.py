@@ -83,14 +83,8 @@ def run(args) -> int:
 
     from robust_drake.log import slow_step
 
-    vis = None
-    if args.meshcat_wait is not None and args.meshcat is None:
-        raise RobustDrakeError("--meshcat-wait needs --meshcat")
-    if args.meshcat not in (None, "live") and not args.meshcat.lower().endswith((".html", ".htm")):
-        raise RobustDrakeError(f"--meshcat takes a .html file name for the replay (got {args.meshcat!r}), "
-                               "or nothing for the live viewer only")
-    if args.animation and not args.animation.lower().endswith((".gif", ".html")):
-        raise RobustDrakeError(f"--animation takes a .gif or .html file name (got {args.animation!r})")
+    _check_view_options(args)
+    meshcat = vis = None
     if args.meshcat:
         from robust_drake.viz import add_meshcat
 
@@ -99,23 +93,7 @@ def run(args) -> int:
 
     with slow_step(f"simulating {args.controller} on {args.robot}, {args.trajectory}, {args.rate:g} Hz ..."):
         res = loop.simulate()
-    replay = None
-    if vis is not None:
-        from robust_drake.viz import publish_recording, save_replay
-
-        if args.meshcat != "live":
-            replay = str(save_replay(meshcat, vis, args.meshcat, loop=loop, result=res))
-            print(f"meshcat replay: {replay}", file=sys.stderr)
-        else:
-            publish_recording(vis)
-    animation = None
-    if args.animation:
-        from robust_drake.viz import save_animation
-
-        if not res.link_lengths:
-            raise RobustDrakeError("--animation draws planar 2-link arms; use --meshcat FILE.html for this arm")
-        animation = str(save_animation(res, args.animation))
-        print(f"animation: {animation}", file=sys.stderr)
+    views = _save_views(args, loop, res, meshcat, vis)
     if args.diagram:
         from robust_drake.viz import render_diagram
 
@@ -137,10 +115,7 @@ def run(args) -> int:
     out["reference"] = dict(loop.reference.params)  # with the offset the joint limits chose
     if plot:
         out["plots"] = [plot] + ([str(plots / "task_path.png")] if res.link_lengths else [])
-    if replay:
-        out["meshcat_replay"] = replay
-    if animation:
-        out["animation"] = animation
+    out.update(views)
     if args.json:
         print_json(out)
     else:
@@ -148,6 +123,41 @@ def run(args) -> int:
     if vis is not None:
         _keep_server(args, meshcat)
     return 1 if res.diverged else 0
+
+
+def _check_view_options(args) -> None:
+    """--meshcat FILE.html, --meshcat-wait S (needs --meshcat), --animation FILE.gif|.html."""
+    if args.meshcat_wait is not None and args.meshcat is None:
+        raise RobustDrakeError("--meshcat-wait needs --meshcat")
+    if args.meshcat not in (None, "live") and not args.meshcat.lower().endswith((".html", ".htm")):
+        raise RobustDrakeError(f"--meshcat takes a .html file name for the replay (got {args.meshcat!r}), "
+                               "or nothing for the live viewer only")
+    if args.animation and not args.animation.lower().endswith((".gif", ".html")):
+        raise RobustDrakeError(f"--animation takes a .gif or .html file name (got {args.animation!r})")
+
+
+def _save_views(args, loop, res, meshcat, vis) -> dict:
+    """After the run: publish the Meshcat recording (and write its replay), write the animation;
+    returns the JSON keys ``meshcat_replay`` / ``animation`` of the files written."""
+    import sys
+
+    out = {}
+    if vis is not None:
+        from robust_drake.viz import publish_recording, save_replay
+
+        if args.meshcat != "live":
+            out["meshcat_replay"] = str(save_replay(meshcat, vis, args.meshcat, loop=loop, result=res))
+            print(f"meshcat replay: {out['meshcat_replay']}", file=sys.stderr)
+        else:
+            publish_recording(vis)
+    if args.animation:
+        from robust_drake.viz import save_animation
+
+        if not res.link_lengths:
+            raise RobustDrakeError("--animation draws planar 2-link arms; use --meshcat FILE.html for this arm")
+        out["animation"] = str(save_animation(res, args.animation))
+        print(f"animation: {out['animation']}", file=sys.stderr)
+    return out
 
 
 def _keep_server(args, meshcat) -> None:

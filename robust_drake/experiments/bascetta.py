@@ -125,30 +125,37 @@ def run_case_study(gains=(25.0, 5.0), duration=None, boundary=0.01, perturbation
 
 
 def plot_case_study(study: dict, outdir, other: dict | None = None) -> list:
-    """Analogues of BR figs. 1-6 as PNG files in ``outdir``; ``other`` is a second study (other
-    gains) for fig. 6. Needs ``keep_results=True`` studies. Returns the paths written.
+    """Write :func:`case_study_figures` as PNG files into ``outdir``; returns the paths written."""
+    import pathlib
+
+    outdir = pathlib.Path(outdir)
+    outdir.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for name, fig in case_study_figures(study, other).items():
+        fig.savefig(outdir / name, dpi=110)
+        paths.append(str(outdir / name))
+    return paths
+
+
+def case_study_figures(study: dict, other: dict | None = None) -> dict:
+    """Analogues of BR figs. 1-6 as matplotlib Figures, by file name (``fig3_w_base.png``, ...);
+    ``other`` is a second study (other gains) for fig. 6. Needs ``keep_results=True`` studies.
 
     Figs. 3-4 (the additional control w per joint) add what the section compares and the two
     curves hide, lying within a line width of each other: the cumulative energy
     sqrt(int_0^t w_j^2 dt) of Case A and Case B and its relative difference (the paper reports
     11 % less for Case B, BR section V); figs. 5-6 add rho_B - rho_A."""
-    import pathlib
-
     from robust_drake.kinematics import planar_forward_kinematics
     from robust_drake.plotting import style, subplots
 
-    outdir = pathlib.Path(outdir)
-    outdir.mkdir(parents=True, exist_ok=True)
     (rA, cA), (rB, cB) = study["_results"]["A"], study["_results"]["B"]
-    paths = []
+    figures = {}
     g0 = study["gains"]
     gains = f"K_P = {g0['K_P']:g}, K_D = {g0['K_D']:g}"
 
     def save(fig, name):
-        p = outdir / name
         fig.tight_layout()
-        fig.savefig(p, dpi=110)
-        paths.append(str(p))
+        figures[name] = fig
 
     with style():
         fig, ax = subplots(1, 1, figsize=(6.5, 3.6))
@@ -204,7 +211,7 @@ def plot_case_study(study: dict, outdir, other: dict | None = None) -> list:
             a2.axhline(0.0, color="0.6", lw=0.8)
             a2.set_ylabel("rho_B - rho_A\n[rad/s^2]"), a2.set_xlabel("t [s]")
             save(fig, f"fig{fnum}_rho_kp{g['K_P']:g}.png")
-    return paths
+    return figures
 
 
 # ============================================================================ section II-C: constant rho
