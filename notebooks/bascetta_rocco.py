@@ -20,6 +20,7 @@
 # eq. 13, Case B takes P from the Riccati equation 17 and rho from eq. 20.
 
 # %%
+# %matplotlib inline
 import os
 
 import numpy as np

@@ -25,6 +25,7 @@
 #    ellipsoid's boundary.
 
 # %%
+# %matplotlib inline
 import os
 
 import matplotlib.pyplot as plt

@@ -19,6 +19,7 @@
 # Coulomb + viscous friction on the plant and torque saturation at 31.2 N m.
 
 # %%
+# %matplotlib inline
 import os
 import tempfile
 

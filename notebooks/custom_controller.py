@@ -24,6 +24,7 @@
 # dynamics) on the Siciliano vertical 2-link arm, against the PD baseline with the same gains.
 
 # %%
+# %matplotlib inline
 import os
 
 import matplotlib.pyplot as plt

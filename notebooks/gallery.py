@@ -19,6 +19,7 @@
 # is cut to a fraction of a second; unset it for the paper's horizons.
 
 # %%
+# %matplotlib inline
 import os
 import pathlib
 import subprocess

@@ -25,6 +25,7 @@
 # run the notebook without it (or `robust-drake compare --table all`) for the full horizons.
 
 # %%
+# %matplotlib inline
 import os
 import pathlib
 

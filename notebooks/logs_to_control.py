@@ -28,6 +28,7 @@
 # The same loop is `robust-drake logs-to-control --robot puma560_3link`.
 
 # %%
+# %matplotlib inline
 import os
 
 import matplotlib.pyplot as plt

@@ -27,6 +27,7 @@
 # experiment (an arm with a hidden Stribeck effect).
 
 # %%
+# %matplotlib inline
 import glob
 import os
 import tempfile

@@ -184,16 +184,16 @@ SPECTRUM_FLOOR = 1e-6
 def _binned_mean(x: np.ndarray, r: np.ndarray, bins: int = 16, min_count: int = 20):
     """Mean of ``r`` in ``bins`` equal-width bins of ``x`` over its 1-99 % range (bins with fewer
     than ``min_count`` samples dropped): (bin centres, means)."""
+    from scipy.stats import binned_statistic
+
     lo, hi = np.quantile(x, [0.01, 0.99])
     if not hi > lo:
         return np.array([lo]), np.array([r.mean()])
-    edges = np.linspace(lo, hi, bins + 1)
-    k = np.clip(np.digitize(x, edges) - 1, 0, bins - 1)
     inside = (x >= lo) & (x <= hi)
-    count = np.bincount(k[inside], minlength=bins)
-    total = np.bincount(k[inside], weights=r[inside], minlength=bins)
+    mean, edges, _ = binned_statistic(x[inside], r[inside], "mean", bins=bins, range=(lo, hi))
+    count = binned_statistic(x[inside], r[inside], "count", bins=bins, range=(lo, hi))[0]
     ok = count >= min_count
-    return 0.5 * (edges[:-1] + edges[1:])[ok], total[ok] / count[ok]
+    return 0.5 * (edges[:-1] + edges[1:])[ok], mean[ok]
 
 
 def _spectrum_panel(ax, data: IdentData, series) -> None:
