@@ -109,3 +109,49 @@ def test_diagram_svg_renders_through_dot(tmp_path):
     assert "SP1" in text and "plant" in text
     # the plant's unused ports are hidden: none of its ~30 per-body output ports is drawn
     assert "spatial_accelerations" not in text and "contact_results" not in text
+
+
+def test_stick_figure_animation_of_a_planar_arm(tmp_path):
+    """The animation's frames follow the run: the last frame's arm tip is the end effector's
+    position at the last sample (forward kinematics of the logged angles)."""
+    import robust_drake as rd
+    from PIL import Image
+    from robust_drake.kinematics import planar_forward_kinematics
+
+    res = rd.simulate(trajectory="circle", controller="sp2", duration=0.4)
+    anim = rd.animate_planar(res, fps=10)
+    arm = next(line for line in anim._fig.axes[0].get_lines() if line.get_label() == "arm")
+    anim._func(len(anim._save_seq) - 1 if anim._save_seq else 4)
+    tip = planar_forward_kinematics(res.q[-1:], res.link_lengths)[0]
+    assert np.allclose([arm.get_xdata()[-1], arm.get_ydata()[-1]], tip, atol=1e-9)
+    gif = rd.save_animation(res, tmp_path / "arm.gif", fps=10)
+    assert Image.open(gif).n_frames == 5  # 0.4 s at 10 frames per second, both ends
+    with pytest.raises(rd.RobustDrakeError, match="planar 2-link"):
+        rd.animate_planar(rd.simulate(robot="puma560_3link", controller="pd", trajectory="sine", duration=0.05))
+
+
+def test_continuous_custom_controller_in_a_sampled_loop_warns():
+    import robust_drake as rd
+    from pydrake.systems.framework import LeafSystem
+
+    class Continuous(LeafSystem):
+        def __init__(self, ctx):
+            super().__init__()
+            for name, m in (("x_d", 3), ("q", 1), ("v", 1), ("v_error", 1)):
+                self.DeclareVectorInputPort(name, m * ctx.n)
+            self.DeclareVectorOutputPort("u", ctx.n, lambda c, o: o.SetFromVector(np.zeros(ctx.n)))
+
+    with pytest.warns(UserWarning, match="declares no periodic update.*not sampled at 2500 Hz"):
+        rd.build_closed_loop(rd.ClosedLoopConfig(controller=Continuous))
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        rd.build_closed_loop(rd.ClosedLoopConfig(controller="sp1"))  # the registry's are sampled
+
+
+def test_meshcat_options_are_checked(capsys):
+    assert main(["simulate", "--duration", "0.05", "--meshcat-wait", "1"]) == 2
+    assert "--meshcat-wait needs --meshcat" in capsys.readouterr().err
+    assert main(["simulate", "--duration", "0.05", "--meshcat", "out.png"]) == 2
+    assert "--meshcat takes a .html file name" in capsys.readouterr().err
