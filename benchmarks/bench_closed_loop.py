@@ -170,18 +170,18 @@ def d2r2_rows(seconds):
     }
 
 
-def panda_rows(seconds):
+def panda_rows(seconds, rate=1000.0):
     from robust_drake.models import make_plant
 
     plant = make_plant("panda")
     ctx = plant.CreateDefaultContext()
     plant.SetPositions(ctx, PANDA_READY)
     K = (50.0 * np.diag(plant.CalcMassMatrix(ctx))).tolist()
-    cfg = dict(robot="panda", trajectory="step", rate=1000.0, duration=seconds, controller="sp1",
+    cfg = dict(robot="panda", trajectory="step", rate=rate, duration=seconds, controller="sp1",
                controller_params={"epsilon": 1.0, "K": K, "Lambda": 20.0},
                trajectory_params={"amplitude": 0.3, "omega": 8.0, "offset": PANDA_READY, "duration": seconds},
                encoder_resolution=2 * np.pi / 2 ** 20, torque_limit=PANDA_LIMITS, effects=[("sigmoid_friction", {})])
-    T = 1 / 1000
+    T = 1 / rate
     return T, {
         "panda plant alone (constant torque)": lambda: plant_alone("panda", T, seconds, q0=PANDA_READY),
         "panda SP1 loop (full)": lambda: advance(ClosedLoop(ClosedLoopConfig(**cfg)), seconds),

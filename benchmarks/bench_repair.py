@@ -104,6 +104,8 @@ def main(argv=None):
     ap.add_argument("--rate", type=float, default=1000.0)
     ap.add_argument("--no-plots", action="store_true")
     ap.add_argument("--keep", help="folder for the CSVs and the report (default: a temporary one)")
+    ap.add_argument("--reuse", action="store_true",
+                    help="with --keep: reuse <case>_fit.csv / <case>_validate.csv already there (not re-simulated)")
     ap.add_argument("--default-allocator", action="store_true",
                     help="leave glibc's allocator as it is (the command line keeps freed memory: allocator.py)")
     args = ap.parse_args(argv)
@@ -116,10 +118,14 @@ def main(argv=None):
 
     folder = args.keep or tempfile.mkdtemp(prefix="bench_repair_")
     t = time.perf_counter()
-    fit_csv, val_csv, truth = outside_case(args.case, robot=args.robot, duration=args.duration,
-                                           rate_hz=args.rate, out_dir=folder)
-    print(f"case {args.case} on {args.robot}: {args.duration:g} s at {args.rate:g} Hz, fit and validate "
-          f"({time.perf_counter() - t:.1f} s to simulate; not counted)")
+    fit_csv, val_csv = (os.path.join(folder, f"{args.case}_{r}.csv") for r in ("fit", "validate"))
+    if args.reuse and args.keep and os.path.exists(fit_csv) and os.path.exists(val_csv):
+        print(f"case {args.case} on {args.robot}: reusing {fit_csv} and {val_csv}")
+    else:
+        fit_csv, val_csv, truth = outside_case(args.case, robot=args.robot, duration=args.duration,
+                                               rate_hz=args.rate, out_dir=folder)
+        print(f"case {args.case} on {args.robot}: {args.duration:g} s at {args.rate:g} Hz, fit and validate "
+              f"({time.perf_counter() - t:.1f} s to simulate; not counted)")
     if not args.default_allocator:
         from robust_drake.allocator import reuse_freed_memory
 

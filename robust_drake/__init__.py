@@ -11,7 +11,8 @@ The flat API::
     import robust_drake as rd
     res = rd.simulate(controller="sp2", trajectory="circle", metrics_skip=1.0)
     res.metrics["maxerr_task"]            # m, JS eq. 59
-    report = rd.repair(["fit.csv"], robot="d2r2", out="out/repair")
+    report = rd.repair(["fit.csv"], robot="d2r2", out="out/repair")   # RepairResult (report.json as a mapping)
+    model = rd.identify(["fit.csv"], robot="d2r2")   # IdentifiedModel: rigid body + friction + set
     ell = rd.ellipsoid(samples=5)         # CI section 5.1 confidence ellipsoid
 
 Importing the package is cheap and has no side effects: pydrake, numpy and matplotlib are
@@ -35,6 +36,10 @@ _LAZY = {
     "make_plant": "robust_drake.api",
     "error_criteria": "robust_drake.api",
     "repair": "robust_drake.api",
+    "identify": "robust_drake.api",
+    "control": "robust_drake.api",
+    "IdentifiedModel": "robust_drake.model_repair.model",
+    "RepairResult": "robust_drake.model_repair.result",
     "ellipsoid": "robust_drake.api",
     "run_batch": "robust_drake.api",
     "run_montecarlo": "robust_drake.api",
@@ -43,6 +48,9 @@ _LAZY = {
     "list_controllers": "robust_drake.api",
     "list_trajectories": "robust_drake.api",
     "list_observers": "robust_drake.api",
+    "excite": "robust_drake.api",
+    "simulate_experiment": "robust_drake.api",
+    "ExcitationConfig": "robust_drake.excitation.design",
     "ClosedLoopConfig": "robust_drake.diagram",
     "SimulationResult": "robust_drake.diagram",
     "DiscreteController": "robust_drake.systems.controllers.base",

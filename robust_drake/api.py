@@ -20,6 +20,8 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers only
     import pandas as pd
 
     from robust_drake.diagram import ClosedLoop, ClosedLoopConfig, SimulationResult
+    from robust_drake.model_repair.model import IdentifiedModel
+    from robust_drake.model_repair.result import RepairResult
     from robust_drake.uncertainty.ellipsoid import EllipsoidResult
     from robust_drake.scenario import Scenario
 
@@ -150,13 +152,89 @@ def error_criteria(t: "np.ndarray", q: "np.ndarray", q_d: "np.ndarray",
     return _criteria(t, q, q_d, link_lengths=link_lengths, skip=skip, dt=dt)
 
 
-def repair(fit: str | Sequence[str], robot: str, *, validate: str | Sequence[str] | None = None,
+def identify(logs: Any, robot: str, *, validate: Any = None, torque: str = "tau_meas",
+             cutoff_hz: float | None = None, velocities: str = "positions", estimator: str = "auto",
+             progress: Callable[[str], None] | None = None) -> "IdentifiedModel":
+    """Identify an arm's rigid body and friction from measured logs (no effect search).
+
+    The URDF's base parameters (Drake-derived regressor) plus Coulomb and viscous friction per
+    joint, linear in the parameters (CI eq. 2): weighted least squares, or instrumental variables
+    where the Hausman test flags errors in the variables; friction levels >= 0; the estimator's
+    covariance, from which :meth:`IdentifiedModel.confidence_set` gives the CI eq. 10 ellipsoid.
+
+    Parameters
+    ----------
+    logs : str, sequence of str, numpy.ndarray or pandas.DataFrame
+        Fit logs: CSV files (canonical ``t, q1..qn, tau1..taun`` or DFKI records), arrays
+        (N, 1 + 2n) with columns ``t, q1..qn, tau1..taun`` [s, rad, N m] in that order, or
+        DataFrames with those column names (or a list of them).
+    robot : str
+        Robot name (URDF shipped in ``robust_drake/robots``) or a URDF path.
+    validate : optional
+        Validation logs, as ``logs``; None holds out the last 25 % of every fit log.
+    torque : str
+        DFKI torque column, ``"tau_meas"`` or ``"tau_con"`` (ignored for canonical logs).
+    cutoff_hz : float, optional
+        Zero-phase low-pass cut-off for q and tau [Hz] (None: 8 Hz).
+    velocities : str
+        ``"positions"`` (differentiate the filtered positions) or ``"logged"`` (the logs' qd columns).
+    estimator : str
+        ``"auto"``, ``"least_squares"`` or ``"instrumental_variables"``.
+    progress : callable, optional
+        ``progress(message)`` for progress lines (None: the ``robust_drake`` logger).
+
+    Returns
+    -------
+    IdentifiedModel
+        Base parameters [SI] with covariance, friction ``coulomb`` [N m] / ``viscous``
+        [N m s/rad], ``estimator``; ``data["rms_validate"]`` [N m] per joint.
+    """
+    from robust_drake.model_repair.identify import identify as _identify
+
+    return _identify(logs, robot, validate=validate, torque=torque, cutoff_hz=cutoff_hz, velocities=velocities,
+                     estimator=estimator, progress=progress)
+
+
+def control(model: Any, controller: str = "ci", **options: Any) -> dict:
+    """Design a robust controller from an identified model and check it over its confidence set.
+
+    The controller (``"ci"``: Calafiore & Indri eq. 15 on the 1 - alpha ellipsoid; ``"sp1"``,
+    ``"sp2"``: Spong's JS eqs. 18 / SP2 with rho from that ellipsoid) is designed from the model's
+    base parameters (theta0) and its confidence set; plants drawn across the set (half on its
+    boundary, each a physically valid arm) with the identified friction and effects are tracked,
+    each run's largest error per joint after the transient compared with that plant's ultimate
+    bound (CI: ``experiments.ultimate_bound``; SP1/SP2: JS eq. 20 with rho epsilon).
+
+    Parameters
+    ----------
+    model : IdentifiedModel, str or RepairResult
+        The model, a repair's ``report.json`` (or its folder) or a model file.
+    controller : str
+        ``"ci"``, ``"sp1"`` or ``"sp2"``.
+    **options
+        :class:`robust_drake.experiments.control.ControlConfig` fields: ``alpha`` (0.01),
+        ``draws`` (8), ``track_duration`` [s] (2), ``transient`` [s] (1), ``rate`` [Hz] (the
+        robot's), ``seed``, ``design`` (path of the design YAML to write, None: none).
+
+    Returns
+    -------
+    dict
+        ``guaranteed``, ``verdict``, ``bound`` / ``max_error`` [rad], ``draws`` (per draw:
+        ``bound_per_joint``, ``max_error_per_joint``, ...), ``design`` (controller, gains,
+        theta0, set, epsilon, rate), ``nominal`` (the design's own run) and ``design_file``.
+    """
+    from robust_drake.experiments.control import ControlConfig, run_control
+
+    return run_control(model, ControlConfig(controller=controller, **options))
+
+
+def repair(fit: Any, robot: str, *, validate: Any = None,
            out: str | os.PathLike | None = None, torque: str = "tau_meas",
            cutoff_hz: float | None = None, effects: Sequence[str] | None = None,
            min_gain: float | None = None, max_effects: int = 4, consistent: bool = True,
            instruments: bool = True, nominal: bool = True, replay: bool = True,
            plots: bool = True, sigma_rel: float | None = None, overwrite: bool = False,
-           progress: Callable[[str], None] | None = None) -> dict:
+           progress: Callable[[str], None] | None = None) -> "RepairResult":
     """Identify a model from measured data, find and add the missing effects, report before/after.
 
     The loop of ``robust-drake repair``: filter and differentiate the records, fit the baseline
@@ -167,12 +245,14 @@ def repair(fit: str | Sequence[str], robot: str, *, validate: str | Sequence[str
 
     Parameters
     ----------
-    fit : str or sequence of str
-        Fit data: CSV files (canonical ``t, q1..qn, tau1..taun`` or DFKI records).
+    fit : str, sequence of str, numpy.ndarray or pandas.DataFrame
+        Fit data: CSV files (canonical ``t, q1..qn, tau1..taun`` or DFKI records), arrays
+        (N, 1 + 2n) with columns ``t, q1..qn, tau1..taun`` [s, rad, N m] in that order, or
+        DataFrames with those column names (or a list of them).
     robot : str
         Robot name (URDF shipped in ``robust_drake/robots``) or a URDF path.
-    validate : str or sequence of str, optional
-        Validation files; None holds out the last 25 % of every fit file.
+    validate : optional
+        Validation data, as ``fit``; None holds out the last 25 % of every fit file.
     out : str or path, optional
         Folder for ``report.md``, ``report.json`` and the PNG plots; None writes nothing.
     torque : str
@@ -205,17 +285,16 @@ def repair(fit: str | Sequence[str], robot: str, *, validate: str | Sequence[str
 
     Returns
     -------
-    dict
-        The report (``report.json``): ``baseline`` and ``final`` RMS torque residuals [N m]
-        per joint, ``effects`` added, ``unexplained_structure``, ``warnings``, ...
+    RepairResult
+        A read-only mapping over the report (``report.json``: ``res["baseline"]`` and
+        ``res["final"]`` RMS torque residuals [N m] per joint, ``res["effects"]`` added,
+        ``res["verdict"]``, ``res["warnings"]``, ...) with ``.report`` (the dict), ``.model`` and
+        ``.baseline_model`` (:class:`IdentifiedModel`), ``.plot()`` and ``.to_markdown()``.
     """
     from robust_drake.identification.data import DEFAULT_CUTOFF_HZ
-    from robust_drake.model_repair.pipeline import RepairOptions, run_repair
+    from robust_drake.model_repair.pipeline import RepairOptions
     from robust_drake.model_repair.selection import MIN_GAIN
 
-    fits = [fit] if isinstance(fit, (str, os.PathLike)) else list(fit)
-    vals = None if validate is None else ([validate] if isinstance(validate, (str, os.PathLike))
-                                          else list(validate))
     opts = RepairOptions(robot=robot, torque=torque,
                          cutoff_hz=DEFAULT_CUTOFF_HZ if cutoff_hz is None else cutoff_hz,
                          kinds=None if effects is None else list(effects),
@@ -226,8 +305,23 @@ def repair(fit: str | Sequence[str], robot: str, *, validate: str | Sequence[str
         if not sigma_rel > 0:
             raise RobustDrakeError(f"sigma_rel must be > 0, got {sigma_rel}")
         opts.sigma_rel = sigma_rel
-    return run_repair(fits, opts, validate_paths=vals, out_dir=None if out is None else str(out),
-                      progress=progress, overwrite=overwrite)  # None: logger + stage bar
+    return _repair_logs(fit, validate, opts, None if out is None else str(out), progress,
+                        overwrite)  # None: logger + stage bar
+
+
+def _repair_logs(fit, validate, opts, out, progress, overwrite) -> "RepairResult":
+    """``run_repair`` on logs given as files, arrays or DataFrames (``identification.logs``)."""
+    from robust_drake.identification.logs import as_log_files
+    from robust_drake.model_repair.pipeline import run_repair
+    from robust_drake.model_repair.result import RepairResult
+
+    with as_log_files(fit, None, "repair") as fits:
+        if validate is None:
+            rep = run_repair(fits, opts, validate_paths=None, out_dir=out, progress=progress, overwrite=overwrite)
+        else:
+            with as_log_files(validate, None, "repair (validate)") as vals:
+                rep = run_repair(fits, opts, validate_paths=vals, out_dir=out, progress=progress, overwrite=overwrite)
+    return RepairResult(rep, out)
 
 
 def ellipsoid(data: Mapping[str, "np.ndarray"] | None = None, *, samples: int = 5,
@@ -464,3 +558,93 @@ def default_gains(ctx: Any) -> "tuple":
     from robust_drake.systems.controllers.spong import default_gains as _gains
 
     return _gains(ctx)
+def excite(robot: str | None = None, *, config: "Any" = None, progress: Callable | None = None,
+           **options: Any) -> "Any":
+    """Design an identification experiment: a periodic, band-limited Fourier motion that
+    maximises log det of the information of the base parameters plus friction (D-optimal,
+    Swevers et al. 1997; Gautier & Khalil 1992's condition number is reported), within the
+    joint position, velocity, acceleration and torque limits and free of collisions where the
+    URDF has collision geometry, at rest at the start pose at both ends
+    (:mod:`robust_drake.excitation.design`).
+
+    ``rd.excite("panda", duration=10)`` is short for
+    ``rd.excite(config=rd.ExcitationConfig(robot="panda", duration=10))``.
+
+    Parameters
+    ----------
+    robot : str
+        Robot name or URDF path (when ``config`` is not given).
+    config : ExcitationConfig, optional
+        The whole design: duration [s], period [s], harmonics, max_frequency [Hz], start pose
+        [rad], velocity / acceleration / torque limits, ``effects`` (kinds added to the
+        information, e.g. ``("position_dependent", "stribeck")``), min_distance [m], rate [Hz].
+    progress : callable, optional
+        ``progress(message)`` at each stage (default: the ``robust_drake`` logger).
+    **options
+        :class:`~robust_drake.excitation.design.ExcitationConfig` fields.
+
+    Returns
+    -------
+    ExcitationResult
+        ``trajectory`` (callable t -> (q, qd, qdd)), samples ``t, q, qd, qdd, tau`` at the
+        robot's rate, ``report`` (log_det, condition_number, predicted_std vs the default
+        excitation, margins); ``to_csv(path)`` writes ``t, q1.., qd1.., qdd1..`` (what
+        ``simulate --trajectory FILE.csv`` tracks), ``plot(dir)``, ``figure()``.
+
+    Raises
+    ------
+    RobustDrakeError
+        On a bad configuration or when no motion satisfies the limits.
+    """
+    from robust_drake.excitation.design import ExcitationConfig as _Config
+    from robust_drake.excitation.design import design_excitation
+
+    if config is not None and (robot is not None or options):
+        raise RobustDrakeError("excite: give either a config or robot and options, not both")
+    if config is None:
+        if robot is None:
+            raise RobustDrakeError("excite: give the robot (a name or a URDF path)")
+        config = _Config(robot=robot, **options)
+    return design_excitation(config, progress=progress)
+
+
+def simulate_experiment(robot: str, effects: Any = (), *, duration: float = 10.0, reference: Any = None,
+                        seed: int = 0, out_csv: str | None = None, **options: Any) -> "Any":
+    """Rehearse an identification experiment in simulation: the arm (URDF + the description's
+    friction) with hidden ``effects`` tracks ``reference`` (e.g. ``rd.excite(...).trajectory``,
+    or by default the built-in Fourier excitation about the middle of the joint ranges) under a
+    PD loop, with torque noise and encoder rounding; returns the log ``t, q1..qn, tau1..taun``
+    [s, rad, N m] as a DataFrame and writes it to ``out_csv`` when given (what ``rd.repair``
+    reads).
+
+    Parameters
+    ----------
+    robot : str
+        Robot name or URDF path.
+    effects : list of (kind, joint, parameters)
+        Effects the simulated arm has and the URDF does not (kinds of the effect library, joints
+        0-based as in the library's constructors), e.g. ``[("position_dependent", 1,
+        {"amplitude": 0.06, "harmonic": 4})]``.
+    duration : float
+        Length of the log [s].
+    reference : callable, optional
+        ``f(t) -> (q, qd, qdd)`` to track instead of the default excitation.
+    seed : int
+        Seed of the noise (and of the default excitation's phases).
+    out_csv : str, optional
+        Where to write the log.
+    **options
+        ``model_repair.simulated.simulate_experiment`` keywords (``rate_hz``, ``coulomb``,
+        ``viscous``, ``torque_noise_std`` [N m], ``encoder_resolution`` [rad], ...).
+    """
+    from robust_drake.experiments.logs_to_control import excitation_for
+    from robust_drake.model_repair.simulated import simulate_experiment as _simulate
+
+    excitation = excitation_for(robot)
+    if reference is not None:
+        if not callable(reference):
+            raise RobustDrakeError("simulate_experiment: reference must be a callable t -> (q, qd, qdd), "
+                                   "e.g. rd.excite(...).trajectory")
+        excitation["reference"] = reference
+    return _simulate(robot=robot, effects=effects, duration=duration, seed=seed, excitation=excitation,
+                     out_csv=out_csv, **options)

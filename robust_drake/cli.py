@@ -40,6 +40,8 @@ COMMAND_MODULES = [
     "robust_drake.commands.epsilon_search",
     "robust_drake.commands.logs_to_control",
     "robust_drake.commands.list",
+    "robust_drake.commands.control",
+    "robust_drake.commands.excite",
 ]
 
 

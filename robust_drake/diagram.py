@@ -38,6 +38,7 @@ from pydrake.systems.primitives import LogVectorOutput, Multiplexer, Saturation
 from robust_drake.description import describe
 from robust_drake.divergence import STATE_LIMIT, TRACKING_ERROR_LIMIT, is_diverged
 from robust_drake.errors import RobustDrakeError
+from robust_drake.loop_defaults import LOOP_DEFAULTS
 from robust_drake.metrics import error_criteria, torque_statistics
 from robust_drake.models import ArmSpec, JointLimits, ROBOTS, add_arm, get_arm, set_d2r2_theta
 from robust_drake.registry import BuildContext, block_label, is_block_spec, make_block
@@ -165,32 +166,49 @@ class ClosedLoopConfig:
     flexibility : FlexibilityConfig, dict or None
         Two-mass drives and structural modes (:mod:`robust_drake.systems.flexibility`);
         None: rigid arm.
+    model : IdentifiedModel, str, dict or None
+        The controller's model: an :class:`~robust_drake.model_repair.model.IdentifiedModel`, a
+        repair's ``report.json`` (or its folder) / a model file, or a model's JSON dict. SP1,
+        SP2, CI eq. 15 and BR Case A/B take theta0 and their uncertainty set from it (its
+        confidence set); its friction and (q, v) effects are fed forward, its stateful effects
+        compensated by their blocks (:meth:`IdentifiedModel.closed_loop_hooks`). Given
+        ``controller_params`` theta0 / P / ellipsoid / rho win (the model then only compensates).
+    plant_model : IdentifiedModel, str, dict or None
+        The simulated arm is this identified model: its rigid body (base parameters realised as
+        URDF inertias), friction (unless ``plant_friction`` is given) and every effect.
+    compensation : list
+        Block factories ``f(ctx) -> LeafSystem`` with input ``state`` (2n, fed [q_meas, v_hat])
+        and output ``generalized_force`` (n): the force the block predicts on the plant is
+        cancelled in the command (u - force) before saturation.
     """
 
-    robot: str = "d2r2"
-    load: str = "none"
-    controller: str = "sp1"
+    robot: str = LOOP_DEFAULTS["robot"]
+    load: str = LOOP_DEFAULTS["load"]
+    controller: str = LOOP_DEFAULTS["controller"]
     controller_params: dict = field(default_factory=dict)
-    trajectory: str = "cpt"
+    trajectory: str = LOOP_DEFAULTS["trajectory"]
     trajectory_params: dict = field(default_factory=dict)
     rate: Any = _DEFAULT
-    observer: str = "averaging"
+    observer: str = LOOP_DEFAULTS["observer"]
     observer_params: dict = field(default_factory=dict)
     plant_friction: Any = _DEFAULT
-    friction_compensation: bool = False
+    friction_compensation: bool = LOOP_DEFAULTS["friction_compensation"]
     compensation_params: dict = field(default_factory=dict)
     encoder_resolution: Any = _DEFAULT
     torque_limit: Any = _DEFAULT
-    duration: float | None = None
+    duration: float | None = LOOP_DEFAULTS["duration"]
     metrics_skip: float = 0.0
     metrics_dt: float | None = 0.01
-    true_theta: list | None = None
+    true_theta: list | None = LOOP_DEFAULTS["true_theta"]
     initial_q: list | None = None
     effects: list = field(default_factory=list)
     plant_setup: list = field(default_factory=list)
     feedforward: list = field(default_factory=list)
     divergence_error: float | None = TRACKING_ERROR_LIMIT
     flexibility: Any = None  # FlexibilityConfig | dict | None (rigid); see robust_drake.systems.flexibility
+    model: Any = None  # IdentifiedModel | report/model path | JSON dict: the controller's model
+    plant_model: Any = None  # IdentifiedModel | path | dict: the simulated arm
+    compensation: list = field(default_factory=list)
 
     def __post_init__(self):
         self.validate()
@@ -209,6 +227,10 @@ class ClosedLoopConfig:
     def resolved(self) -> "ClosedLoopConfig":
         """A copy with the robot-dependent defaults filled in and inputs checked."""
         c = ClosedLoopConfig(**{k: getattr(self, k) for k in self.__dataclass_fields__})
+        c.model, c.plant_model = _identified(c.model, "model"), _identified(c.plant_model, "plant_model")
+        if c.plant_model is not None and c.plant_friction is _DEFAULT:  # the identified arm's friction
+            c.plant_friction = {"coulomb": np.asarray(c.plant_model.coulomb, float).tolist(),
+                                "viscous": np.asarray(c.plant_model.viscous, float).tolist()}
         for name, value in describe(c.robot).closed_loop_defaults().items():
             if getattr(c, name) is _DEFAULT:
                 setattr(c, name, value)
@@ -217,12 +239,127 @@ class ClosedLoopConfig:
         return c
 
     def to_dict(self) -> dict:
-        d = {k: getattr(self, k) for k in self.__dataclass_fields__ if k not in ("effects", "plant_setup", "feedforward")}
+        d = {k: getattr(self, k) for k in self.__dataclass_fields__
+             if k not in ("effects", "plant_setup", "feedforward", "compensation")}
+        for k in ("model", "plant_model"):  # a path as given, a model as its JSON
+            if d[k] is not None and not isinstance(d[k], (str, os.PathLike, dict)):
+                d[k] = d[k].to_json()
+            elif isinstance(d[k], os.PathLike):
+                d[k] = os.fspath(d[k])
         d["controller"], d["observer"] = block_label(self.controller), block_label(self.observer)
         if self.flexibility is not None and hasattr(self.flexibility, "to_dict"):
             d["flexibility"] = self.flexibility.to_dict()
         d["effects"] = [e if isinstance(e, (list, tuple)) else getattr(e, "__name__", repr(e)) for e in self.effects]
         return {k: (None if v is _DEFAULT else v) for k, v in d.items()}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "ClosedLoopConfig":
+        """A config from plain data (YAML / JSON): every field by name, ``effects`` as
+        ``[name, {params}]`` pairs, ``plant_setup`` as ``"module:function"`` or
+        ``["module:function", {params}]`` entries, ``model`` / ``plant_model`` as a path or a
+        model's JSON dict; fields left out take their defaults (the robot description's)."""
+        if not isinstance(d, dict):
+            raise RobustDrakeError(f"a closed-loop description is a mapping of ClosedLoopConfig fields (got {type(d).__name__})")
+        known = {f for f in cls.__dataclass_fields__}
+        unknown = sorted(set(d) - known)
+        if unknown:
+            raise RobustDrakeError(f"unknown closed-loop field(s) {unknown}; known: {sorted(known)}")
+        kw = {k: v for k, v in d.items() if not (v is None and k == "rate")}  # None elsewhere: "none"
+        if "effects" in kw:
+            bad = [e for e in kw["effects"] or [] if not isinstance(e, (list, tuple))]
+            if bad:
+                raise RobustDrakeError(f"effects entries must be [name, {{params}}] pairs (got {bad[0]!r}: a block "
+                                       "factory is not written to a file)")
+            kw["effects"] = [tuple(e) for e in kw["effects"] or []]
+        if "plant_setup" in kw:
+            kw["plant_setup"] = [e if callable(e) else plant_setup_callable(e) for e in kw["plant_setup"]]
+        for k in ("controller_params", "trajectory_params", "observer_params", "compensation_params"):
+            if kw.get(k) is None and k in kw:
+                kw[k] = {}
+        try:
+            return cls(**kw)
+        except TypeError as exc:
+            raise RobustDrakeError(f"closed-loop description: {exc}") from None
+
+    @classmethod
+    def from_yaml(cls, path) -> "ClosedLoopConfig":
+        """:meth:`from_dict` of a YAML file (a mapping of fields; a design file of ``robust-drake
+        control`` keeps them under ``closed_loop``)."""
+        import yaml
+
+        try:
+            with open(path) as fh:
+                doc = yaml.safe_load(fh)
+        except OSError as exc:
+            raise RobustDrakeError(f"cannot read {path}: {exc.strerror or exc}") from None
+        except yaml.YAMLError as exc:
+            raise RobustDrakeError(f"{path} is not YAML: {str(exc).splitlines()[0]}") from None
+        if isinstance(doc, dict) and isinstance(doc.get("closed_loop"), dict):
+            doc = doc["closed_loop"]
+        try:
+            return cls.from_dict(doc)
+        except RobustDrakeError as exc:
+            raise RobustDrakeError(f"{path}: {exc}") from None
+
+    def to_yaml(self, path=None) -> str:
+        """The plain-data fields of the resolved config (robot defaults filled in, a model path
+        replaced by the model's JSON) as YAML, which :meth:`from_yaml` reads back to the same
+        loop (callables -- effects factories, plant_setup functions, feedforward -- are not
+        written); written to ``path`` when given. Floats read back bit for bit."""
+        import yaml
+
+        text = yaml.safe_dump(_plain_data(self.resolved().to_dict()), sort_keys=False)
+        if path is not None:
+            with open(path, "w") as fh:
+                fh.write(text)
+        return text
+
+
+def plant_setup_callable(entry):
+    """``["module:function", {params}]`` -> ``f(plant, plant_context)`` (serialisable form of
+    ClosedLoopConfig.plant_setup, e.g. Monte Carlo "true" parameters of a robot)."""
+    import functools
+    import importlib
+
+    if isinstance(entry, str):
+        target, params = entry, {}
+    elif isinstance(entry, (list, tuple)) and len(entry) in (1, 2) and isinstance(entry[0], str):
+        target, params = entry[0], (dict(entry[1]) if len(entry) == 2 else {})
+    else:
+        raise RobustDrakeError(
+            f"plant_setup entries must be 'module:function' or ['module:function', {{params}}], "
+            f"got {entry!r}")
+    module_name, _, func_name = target.partition(":")
+    try:
+        func = getattr(importlib.import_module(module_name), func_name)
+    except (ImportError, AttributeError) as exc:
+        raise RobustDrakeError(f"plant_setup {target!r} not found: {exc}") from None
+    return functools.partial(func, **params)
+
+
+def _plain_data(x):
+    """YAML-safe plain data: numpy -> Python, tuples -> lists."""
+    if isinstance(x, dict):
+        return {str(k): _plain_data(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_plain_data(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return _plain_data(x.tolist())
+    if isinstance(x, np.generic):
+        return x.item()
+    return x
+
+
+def _identified(m, what: str):
+    """``ClosedLoopConfig.model`` / ``plant_model`` as an IdentifiedModel (None stays None)."""
+    if m is None:
+        return None
+    from robust_drake.model_repair.model import as_identified_model
+
+    try:
+        return as_identified_model(m)
+    except RobustDrakeError as exc:
+        raise RobustDrakeError(f"{what}: {exc}") from None
 
 
 def _is_real(x) -> bool:
@@ -288,7 +425,12 @@ def _check_config(c: "ClosedLoopConfig") -> None:
                 f"plant_friction must be None or {{'coulomb': [...], 'viscous': [...]}} (got {pf!r})")
         for k in ("coulomb", "viscous"):
             _finite_vector(pf[k], f"plant_friction[{k!r}]")
-    for name in ("effects", "plant_setup", "feedforward"):
+    for name in ("model", "plant_model"):
+        m = getattr(c, name)
+        if not (m is None or isinstance(m, (str, os.PathLike, dict)) or hasattr(m, "closed_loop_hooks")):
+            raise RobustDrakeError(f"{name} must be an IdentifiedModel, a report.json / model file path or a "
+                                   f"model's JSON dict (got {type(m).__name__})")
+    for name in ("effects", "plant_setup", "feedforward", "compensation"):
         if not isinstance(getattr(c, name), (list, tuple)):
             raise RobustDrakeError(f"{name} must be a list (got {getattr(c, name)!r})")
     if c.divergence_error is not None and not _finite_positive(c.divergence_error):
@@ -524,6 +666,7 @@ class ClosedLoop:
         self.period = 1.0 / float(c.rate)
         self.build_context = BuildContext(robot=str(c.robot), arm=self.arm, load=c.load, n=n,
                                           period=self.period, config=c)
+        self._model_hooks()
         x_d = self._add_reference()
         self.flexibility = None
         if c.flexibility is not None:  # drive / structural flexibility (None: rigid arm)
@@ -539,6 +682,29 @@ class ClosedLoop:
         # applied_generalized_force, see BUILD_NOTES "Simulation scheme"); a zero source cost ~0.5 us per tick
         self._add_logs(x_d, u, tau, obs)
         self.diagram = None
+
+    def _model_hooks(self):
+        """What ``config.plant_model`` (the simulated arm) and ``config.model`` (the controller's
+        model) add to the loop (:meth:`IdentifiedModel.closed_loop_hooks`): plant effect blocks and
+        setups, and the controller's model, feedforward and compensation blocks."""
+        c = self.config
+        self.model_plant_setup, self.model_effects, self.model_feedforward, self.model_compensation = [], [], [], []
+        self.model_params, self.not_compensated = {}, {}
+        for m, what in ((c.plant_model, "plant_model"), (c.model, "model")):
+            if m is not None:
+                _check_model_robot(m, c.robot, c.load, what)
+        if c.plant_model is not None:
+            hooks = c.plant_model.closed_loop_hooks(plant=True, controller=False)
+            self.model_plant_setup, self.model_effects = hooks["plant_setup"], hooks["effects"]
+        if c.model is not None and "model" not in c.controller_params:  # else the factory compensates its model
+            hooks = c.model.closed_loop_hooks(controller=True)
+            own = ("model", "theta0", "P", "ellipsoid", "rho", "regressor")
+            if (isinstance(c.controller, str) and c.controller in MODEL_CONTROLLERS
+                    and not any(k in c.controller_params for k in own)):
+                self.model_params = {"model": c.model}  # the factory takes theta0, the set, ff and blocks
+            else:
+                self.model_feedforward, self.model_compensation = hooks["feedforward"], hooks["compensation"]
+            self.not_compensated = hooks["not_compensated"]
 
     def _add_reference(self):
         """The reference source; returns its ``x_d`` port."""
@@ -592,7 +758,8 @@ class ClosedLoop:
     def _add_controller(self, x_d, q_meas, obs):
         """The controller (with its feedforward terms); returns its ``u`` port."""
         c, builder = self.config, self.builder
-        ctrl = builder.AddSystem(_make_block("controller", c.controller, self.build_context, c.controller_params))
+        ctrl = builder.AddSystem(_make_block("controller", c.controller, self.build_context,
+                                             {**c.controller_params, **self.model_params}))
         ctrl.set_name("controller")
         self.controller = ctrl
         _warn_if_unsampled(ctrl, c.controller, c.rate)
@@ -600,7 +767,7 @@ class ClosedLoop:
         builder.Connect(q_meas, ctrl.GetInputPort("q"))
         builder.Connect(obs.GetOutputPort("v"), ctrl.GetInputPort("v"))
         builder.Connect(obs.GetOutputPort("v_error"), ctrl.GetInputPort("v_error"))
-        for f in c.feedforward:
+        for f in list(c.feedforward) + self.model_feedforward:
             if not hasattr(ctrl, "add_feedforward"):
                 raise RobustDrakeError(f"controller {block_label(c.controller)!r} does not accept feedforward terms")
             ctrl.add_feedforward(f)
@@ -631,6 +798,7 @@ class ClosedLoop:
             builder.Connect(v_src, comp.GetInputPort("v"))
             u_cmd = comp.get_output_port(0)
             self.compensation = comp
+        u_cmd = self._add_compensation(u_cmd, obs)
         tau = u_cmd
         if c.torque_limit is not None:
             lim = _vector(c.torque_limit, n, "torque_limit")
@@ -645,6 +813,37 @@ class ClosedLoop:
             builder.Connect(tau, obs.GetInputPort("tau"))
         return tau
 
+    def _add_compensation(self, u, obs):
+        """u - sum of the compensation blocks' forces (``config.compensation``, the controller
+        model's stateful effects), each block fed [q_meas, v_hat]; returns the command port."""
+        factories = list(self.config.compensation) + self.model_compensation + list(
+            getattr(self.controller, "compensation", None) or [])
+        self.compensation_blocks = []
+        if not factories:
+            return u
+        from pydrake.systems.primitives import Adder, MatrixGain
+
+        builder, n = self.builder, self.n
+        mux = builder.AddSystem(Multiplexer([n, n]))
+        mux.set_name("compensation_state")
+        builder.Connect(self.encoder.get_output_port(0), mux.get_input_port(0))
+        builder.Connect(obs.GetOutputPort("v"), mux.get_input_port(1))
+        total = builder.AddSystem(Adder(len(factories), n))
+        total.set_name("compensation_forces")
+        for i, f in enumerate(factories):
+            block = builder.AddSystem(f(self.build_context))
+            block.set_name(f"compensation_{i}_{block.get_name() or type(block).__name__}")
+            builder.Connect(mux.get_output_port(0), block.GetInputPort("state"))
+            builder.Connect(block.GetOutputPort("generalized_force"), total.get_input_port(i))
+            self.compensation_blocks.append(block)
+        neg = builder.AddSystem(MatrixGain(-np.eye(n)))
+        builder.Connect(total.get_output_port(0), neg.get_input_port(0))
+        cmd = builder.AddSystem(Adder(2, n))
+        cmd.set_name("compensated_command")
+        builder.Connect(u, cmd.get_input_port(0))
+        builder.Connect(neg.get_output_port(0), cmd.get_input_port(1))
+        return cmd.get_output_port(0)
+
     def _add_plant_forces(self, tau):
         """tau (through the flexible drive if any) + plant friction + effect blocks, summed into
         the plant by the one force path (:mod:`robust_drake.systems.forces`)."""
@@ -655,7 +854,7 @@ class ClosedLoop:
             fr = self.friction_block(n, c.plant_friction["coulomb"], c.plant_friction["viscous"])
             fr.set_name("plant_friction")
             self.effect_blocks.append(fr)
-        for i, eff in enumerate(c.effects):
+        for i, eff in enumerate(list(c.effects) + self.model_effects):
             if callable(eff):
                 block = eff(self.build_context)
             else:
@@ -725,7 +924,7 @@ class ClosedLoop:
             if describe(c.robot).closed_form_regressor != "d2r2":
                 raise RobustDrakeError("true_theta is defined for the D2R2 (JS eq. 14); use plant_setup for other robots")
             set_d2r2_theta(plant, plant_context, np.asarray(c.true_theta, dtype=float))
-        for setup in c.plant_setup:
+        for setup in list(self.model_plant_setup) + list(c.plant_setup):  # the identified arm, then the user's
             setup(plant, plant_context)
         if self.flexibility is not None:
             self.flexibility.initialize(context, q0)
@@ -781,6 +980,20 @@ class ClosedLoop:
         res.extra = {k: v.FindLog(context).data().T for k, v in self.extra_logs.items()}
         res.context = context
         return res
+
+
+#: registry controllers that take ``model=`` (theta0 and the set from an identified model)
+MODEL_CONTROLLERS = ("sp1", "sp2", "calafiore", "calafiore_nominal", "bascetta_a", "bascetta_b")
+
+
+def _check_model_robot(model, robot, load, what: str) -> None:
+    """An identified model fits the loop's arm when its base parameters are the arm's."""
+    from robust_drake.regressor import InverseDynamicsRegressor
+
+    names = InverseDynamicsRegressor.from_robot(robot, load).base_names
+    if list(names) != list(model.base_names):
+        raise RobustDrakeError(f"{what} was identified on {model.robot!r}: its {len(model.base_names)} base parameters "
+                               f"are not those of the loop's robot {robot!r} ({len(names)})")
 
 
 def build_closed_loop(config: ClosedLoopConfig) -> ClosedLoop:

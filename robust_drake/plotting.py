@@ -330,6 +330,8 @@ def _load_report(report_or_dir) -> dict:
 
     if isinstance(report_or_dir, dict):
         return report_or_dir
+    if isinstance(getattr(report_or_dir, "report", None), dict):  # rd.repair's RepairResult
+        return report_or_dir.report
     path = pathlib.Path(os.fspath(report_or_dir))
     if path.is_dir():
         path = path / "report.json"

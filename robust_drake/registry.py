@@ -57,6 +57,7 @@ TRAJECTORIES: dict[str, str] = {
     "sine": "robust_drake.trajectories:make_sine",
     "step": "robust_drake.trajectories:make_step",
     "line": "robust_drake.trajectories:make_line",
+    "file": "robust_drake.trajectories:make_file",  # trajectory CSV (path=...); a name ending in .csv is one too
 }
 
 PLANT_EFFECTS: dict[str, str] = {

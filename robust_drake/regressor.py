@@ -67,6 +67,7 @@ __all__ = [
     "InverseDynamicsRegressor",
     "drake_inverse_dynamics",
     "clear_cache",
+    "PinocchioSlotineLi",
 ]
 
 # ----------------------------------------------------------------------------- closed forms
@@ -266,6 +267,9 @@ def _body_force_regressor(vel, acc):
     return K
 
 
+#: samples per block of :meth:`InverseDynamicsRegressor.evaluate` / ``torque`` for large N
+EVALUATE_ROWS = 4096
+
 _STD_SUFFIX = ("m", "mx", "my", "mz", "Ixx", "Iyy", "Izz", "Ixy", "Ixz", "Iyz")
 # Priority when choosing which standard column represents a group (earlier = kept):
 # joint-axis inertias before masses (the classical regrouping into ZZ_j), base-side bodies first.
@@ -310,6 +314,7 @@ class InverseDynamicsRegressor:
         if method not in ("symbolic", "numeric"):
             raise RobustDrakeError(f"unknown regressor method {method!r}: use 'auto', 'symbolic' or 'numeric'")
         self.method = method
+        self._fast_local = threading.local()  # per-thread PinocchioSlotineLi of slotine_li_single
         self._context = plant.CreateDefaultContext()
         self._build_tree()
         self._build_extras()
@@ -802,16 +807,41 @@ class InverseDynamicsRegressor:
             raise RobustDrakeError(f"q, v, vdot must have shape (N, {n}) or ({n},) and equal N")
         return arrs
 
+    def _standard_rows(self, q, v, vd, columns=None):
+        """Standard regressor of checked (N, n) arrays, restricted to ``columns`` when given,
+        evaluated in blocks of ``EVALUATE_ROWS`` samples for large N (the recursion's temporaries
+        grow with N: ~20 kB per sample of serial7, 2 GB at 10^5 samples at once). Every sample is
+        computed on its own by the same route (the recursion for N > 64), so the values do not
+        depend on the blocking."""
+        N = q.shape[0]
+        if self.method == "symbolic":
+            f = self._standard_symbolic
+        else:
+            f = self._standard_world if N <= 64 else self._standard_numeric_recursive
+        if N <= EVALUATE_ROWS:
+            Y = f(q, v, vd)
+            return Y if columns is None else Y[:, :, columns]
+        p = self.p_standard if columns is None else len(columns)
+        out = np.empty((N, self.n, p))
+        for a in range(0, N, EVALUATE_ROWS):
+            r = slice(a, a + EVALUATE_ROWS)
+            if r.stop < N < r.stop + 65:  # no short tail (<= 64 rows would switch route)
+                r = slice(a, N)
+            Y = f(q[r], v[r], vd[r])
+            out[r] = Y if columns is None else Y[:, :, columns]
+            if r.stop == N:
+                break
+        return out
+
     def evaluate_standard(self, q, v, vdot) -> np.ndarray:
         """Regressor for the standard parameters, (N, n, p_standard)."""
         q, v, vd = self._inputs(q, v, vdot, self.n)
-        if self.method == "symbolic":
-            return self._standard_symbolic(q, v, vd)
-        return self._standard_numeric(q, v, vd)
+        return self._standard_rows(q, v, vd)
 
     def evaluate(self, q, v, vdot) -> np.ndarray:
         """Base regressor Y, (N, n, p_base): tau = Y @ theta_base (gravity included)."""
-        return self.evaluate_standard(q, v, vdot)[:, :, self.base_index]
+        q, v, vd = self._inputs(q, v, vdot, self.n)
+        return self._standard_rows(q, v, vd, self.base_index)
 
     # ------------------------------------------------------------------ Slotine-Li regressor
     def _slotine_li_std(self, q, qd, v, a) -> np.ndarray:
@@ -856,7 +886,24 @@ class InverseDynamicsRegressor:
 
     def slotine_li_single(self, q, qd, v, a) -> np.ndarray:
         """One sample of :meth:`slotine_li`, (n, p_base), for the per-tick controller path:
-        inputs are length-n sequences and are not checked (use :meth:`slotine_li` elsewhere)."""
+        inputs are length-n sequences and are not checked (use :meth:`slotine_li` elsewhere).
+
+        Evaluated by :class:`PinocchioSlotineLi` (two Pinocchio joint-torque regressor calls and
+        one product with the base map; one instance per thread); the numpy/symbolic routes of
+        :meth:`slotine_li_single_reference` are its test reference."""
+        fast = getattr(self._fast_local, "f", None)
+        if fast is None:
+            fast = self._fast_local.f = PinocchioSlotineLi(self)
+        return fast(q, qd, v, a)
+
+    def slotine_li_fast(self) -> "PinocchioSlotineLi":
+        """A new :class:`PinocchioSlotineLi` of this regressor (its own Pinocchio data), for a
+        controller that owns its per-tick regressor."""
+        return PinocchioSlotineLi(self)
+
+    def slotine_li_single_reference(self, q, qd, v, a) -> np.ndarray:
+        """:meth:`slotine_li_single` by this regressor's own route (numpy world-frame recursion or
+        the compiled symbolic regressor): the reference the Pinocchio path is tested against."""
         n = self.n
         if self.method == "symbolic":
             return self._slotine_li_single_symbolic(q, qd, v, a)
@@ -864,6 +911,55 @@ class InverseDynamicsRegressor:
         Y = self._slotine_li_std(f(q, float).reshape(1, n), f(qd, float).reshape(1, n),
                                  f(v, float).reshape(1, n), f(a, float).reshape(1, n))
         return Y[0][:, self.base_index]
+
+    # ------------------------------------------------------------------ Pinocchio twin of the tree
+    def pinocchio_model(self):
+        """(model, joint_q, T): a Pinocchio model of the same kinematic tree (one joint per moving
+        Drake joint, frames read from the Drake plant at q = 0, bodies welded to a moving body folded
+        into its joint), ``joint_q[j]`` the Drake position/velocity index of Pinocchio joint j + 1,
+        and T (10 n_joints, 10 n_bodies) with Y_standard[:, :10 n_bodies] = Y_pinocchio T, Y_pinocchio
+        Pinocchio's joint-torque regressor (rows permuted to Drake's order), whose per-joint
+        parameters are [m, m c, Ixx, Ixy, Iyy, Ixz, Iyz, Izz] about the joint frame's origin."""
+        c = self.__dict__.get("_pin")
+        if c is not None:
+            return c
+        import pinocchio as pin
+        from pydrake.math import RigidTransform
+
+        plant, nodes = self.plant, self._nodes
+        ctx = plant.CreateDefaultContext()
+        plant.SetPositions(ctx, np.zeros(self.n))
+        model = pin.Model()
+        model.gravity.linear = np.asarray(plant.gravity_field().gravity_vector(), dtype=float).copy()
+        jid, X_WJ, owner, joint_q = {}, {}, {}, []
+        for k, nd in enumerate(nodes):
+            a = nd.parent  # the nearest moving ancestor (-1: the world or a body welded to it)
+            while a >= 0 and nodes[a].kind == "weld":
+                a = nodes[a].parent
+            if nd.kind == "weld":
+                owner[k] = a
+                continue
+            X_WM = plant.EvalBodyPoseInWorld(ctx, nd.body).multiply(nd.X_BM)  # = X_WF at q = 0
+            X_WP = RigidTransform() if a < 0 else X_WJ[a]
+            X_PM = X_WP.inverse().multiply(X_WM)
+            ax = [float(x) for x in nd.axis]
+            jm = pin.JointModelRevoluteUnaligned(*ax) if nd.kind == "revolute" else pin.JointModelPrismaticUnaligned(*ax)
+            j = model.addJoint(0 if a < 0 else jid[a], jm,
+                               pin.SE3(X_PM.rotation().matrix().copy(), X_PM.translation().copy()), nd.joint.name())
+            model.appendBodyToJoint(j, pin.Inertia.Identity(), pin.SE3.Identity())  # inertia unused
+            jid[k], X_WJ[k], owner[k] = j, X_WM, k
+            joint_q.append(nd.qi)
+        if any(o < 0 for o in owner.values()):
+            raise RobustDrakeError("a moving body without a moving joint above it")
+        nj = len(jid)
+        T = np.zeros((10 * nj, 10 * len(nodes)))
+        for k, nd in enumerate(nodes):
+            o = owner[k]
+            X = X_WJ[o].inverse().multiply(plant.EvalBodyPoseInWorld(ctx, nd.body))
+            J = jid[o] - 1
+            T[10 * J:10 * J + 10, 10 * k:10 * k + 10] = _pinocchio_parameter_map(X.rotation().matrix(), X.translation())
+        c = self._pin = (model, np.array(joint_q, dtype=int), T)
+        return c
 
     def _slotine_li_single_symbolic(self, q, qd, v, a):
         """Symbolic route, one sample: the compiled lumped regressor in scalar math at the three
@@ -891,9 +987,22 @@ class InverseDynamicsRegressor:
         return arrs
 
     def torque(self, q, v, vdot, theta_base=None) -> np.ndarray:
-        """Inverse dynamics (N, n) from the regressor with theta_base (default: the URDF's)."""
+        """Inverse dynamics (N, n) from the regressor with theta_base (default: the URDF's),
+        in blocks of ``EVALUATE_ROWS`` samples (no (N, n, p) array)."""
         th = self.base_parameters() if theta_base is None else np.asarray(theta_base, float)
-        return self.evaluate(q, v, vdot) @ th
+        q, v, vd = self._inputs(q, v, vdot, self.n)
+        N = q.shape[0]
+        if N <= EVALUATE_ROWS:
+            return self.evaluate(q, v, vd) @ th
+        out = np.empty((N, self.n))
+        for a in range(0, N, EVALUATE_ROWS):
+            r = slice(a, a + EVALUATE_ROWS)
+            if r.stop < N < r.stop + 65:
+                r = slice(a, N)
+            out[r] = self.evaluate(q[r], v[r], vd[r]) @ th
+            if r.stop == N:
+                break
+        return out
 
     def standard_parameters(self, plant=None, context=None) -> np.ndarray:
         """pi: standard parameters read from ``context`` of ``plant`` (default: the URDF's values).
@@ -971,6 +1080,81 @@ class InverseDynamicsRegressor:
     def __repr__(self):
         return (f"InverseDynamicsRegressor({pathlib.Path(self.urdf).name or 'plant'}, n={self.n}, "
                 f"p_standard={self.p_standard}, p_base={self.p_base}, method={self.method!r})")
+
+
+def _pinocchio_parameter_map(R, p) -> np.ndarray:
+    """10 x 10 linear map from the standard parameters of a body B, [m, m c, Ixx, Iyy, Izz, Ixy, Ixz,
+    Iyz] (c and I about B's origin, in B), to Pinocchio's of the same mass in a frame J with X_JB =
+    (R, p): [m, m c_J, I_J xx, xy, yy, xz, yz, zz], I_J about J's origin in J.  With h = m c:
+    h_J = R h + m p and I_J = R I R^T - m [p]^2 - [p][R h] - [R h][p] (parallel axes, linear in
+    (m, h, I))."""
+    out = np.zeros((10, 10))
+    for col in range(10):
+        e = np.zeros(10)
+        e[col] = 1.0
+        m, h = e[0], e[1:4]
+        I = np.array([[e[4], e[7], e[8]], [e[7], e[5], e[9]], [e[8], e[9], e[6]]])
+        Rh = R @ h
+        P, H = _skew(p), _skew(Rh)
+        IJ = R @ I @ R.T - m * P @ P - P @ H - H @ P
+        out[:, col] = [m, *(Rh + m * p), IJ[0, 0], IJ[0, 1], IJ[1, 1], IJ[0, 2], IJ[1, 2], IJ[2, 2]]
+    return out
+
+
+class PinocchioSlotineLi:
+    """Y(q, qd, v, a) theta_base = M(q) a + C(q, qd) v + g(q) [+ Ia_j a_j + b_j qd_j] for one sample,
+    the same matrix as :meth:`InverseDynamicsRegressor.slotine_li` (tested on every URDF), from two
+    calls of Pinocchio's ``computeJointTorqueRegressor`` on a twin of the Drake tree
+    (:meth:`InverseDynamicsRegressor.pinocchio_model`).
+
+    With h(q, w) = C(q, w) w quadratic in w, polarisation gives C(q, qd) v = h(q, w+) - h(q, w-)
+    for w+- = (qd +- v) / 2, so
+
+        Y = Y_g(q, w+, a) - Y_0(q, w-, 0),
+
+    Y_g the regressor with gravity (M a + h + g) and Y_0 the same tree without gravity (h alone);
+    then Y_base = Y_pin T_base (T_base: the columns of :meth:`pinocchio_model`'s T that the base set
+    keeps) and the reflected-inertia / damping columns set to a_j and qd_j.  Inputs: length-n
+    sequences (q [rad or m], qd, v [per s], a [per s^2]); returns an (n, p_base) array."""
+
+    def __init__(self, reg: "InverseDynamicsRegressor"):
+        import pinocchio as pin
+
+        model, joint_q, T = reg.pinocchio_model()
+        self.n, self.p_base = reg.n, reg.p_base
+        self._f = pin.computeJointTorqueRegressor
+        self._mg, self._dg = model, model.createData()
+        m0 = model.copy()
+        m0.gravity.linear = np.zeros(3)
+        self._m0, self._d0 = m0, m0.createData()
+        self._perm = None if np.array_equal(joint_q, np.arange(reg.n)) else joint_q
+        nr = T.shape[1]
+        keep = np.asarray(reg.base_index)
+        rigid = keep < nr
+        Tb = np.zeros((T.shape[0], reg.p_base))
+        Tb[:, rigid] = T[:, keep[rigid]]
+        self._Tb = Tb
+        ex = {c: e for c, e in enumerate(reg._extras)}
+        self._ia = [(int(b), ex[k - nr][2]) for b, k in enumerate(keep) if k >= nr and ex[k - nr][1] == "Ia"]
+        self._b = [(int(b), ex[k - nr][2]) for b, k in enumerate(keep) if k >= nr and ex[k - nr][1] == "b"]
+        self._zero = np.zeros(reg.n)
+
+    def __call__(self, q, qd, v, a) -> np.ndarray:
+        q, qd, v, a = (np.asarray(x, dtype=float) for x in (q, qd, v, a))
+        wp, wm = 0.5 * (qd + v), 0.5 * (qd - v)
+        perm = self._perm
+        if perm is None:
+            D = self._f(self._mg, self._dg, q, wp, a) - self._f(self._m0, self._d0, q, wm, self._zero)
+        else:
+            D = np.empty((self.n, self._Tb.shape[0]))
+            D[perm] = (self._f(self._mg, self._dg, q[perm], wp[perm], a[perm])
+                       - self._f(self._m0, self._d0, q[perm], wm[perm], self._zero))
+        Y = D @ self._Tb  # (a gather over Tb's few non-zeros measured slower than this product)
+        for col, vi in self._ia:
+            Y[vi, col] = a[vi]
+        for col, vi in self._b:
+            Y[vi, col] = qd[vi]
+        return Y
 
 
 def _combo_name(row, names):

@@ -44,6 +44,7 @@ from dataclasses import asdict, dataclass, field, fields
 from typing import Any, Iterable
 
 from robust_drake.errors import RobustDrakeError
+from robust_drake.loop_defaults import LOOP_DEFAULTS, robot_rate
 
 __all__ = [
     "Scenario",
@@ -81,7 +82,9 @@ _EXTRA_TO_CONFIG = {"effects": lambda v: [tuple(e) for e in v],
 
 @dataclass
 class Scenario:
-    """One closed loop, as plain data.
+    """One closed loop, as plain data: overrides of :class:`robust_drake.diagram.ClosedLoopConfig`
+    (same defaults, :data:`robust_drake.loop_defaults.LOOP_DEFAULTS`; ``rate`` None = the robot
+    description's, as the config's).
 
     ``friction`` switches the plant's Coulomb + viscous friction on (the robot's default
     values) or off; ``extra`` passes further :class:`ClosedLoopConfig` fields (``torque_limit``,
@@ -93,24 +96,31 @@ class Scenario:
     ``label`` is a display name only (not part of the id).
     """
 
-    robot: str = "d2r2"
-    load: str = "none"
-    controller: str = "sp1"
+    robot: str = LOOP_DEFAULTS["robot"]
+    load: str = LOOP_DEFAULTS["load"]
+    controller: str = LOOP_DEFAULTS["controller"]
     controller_params: dict = field(default_factory=dict)
-    trajectory: str = "cpt"
+    trajectory: str = LOOP_DEFAULTS["trajectory"]
     trajectory_params: dict = field(default_factory=dict)
-    rate: float = 2500.0
-    observer: str = "averaging"
+    rate: float | None = None  # None: the robot description's (ClosedLoopConfig's default)
+    observer: str = LOOP_DEFAULTS["observer"]
     observer_params: dict = field(default_factory=dict)
     friction: bool = True
-    friction_compensation: bool = False
+    friction_compensation: bool = LOOP_DEFAULTS["friction_compensation"]
     seed: int = 0
-    duration: float | None = None
-    true_theta: list | None = None
+    duration: float | None = LOOP_DEFAULTS["duration"]
+    true_theta: list | None = LOOP_DEFAULTS["true_theta"]
     draw: int | None = None
     tags: dict = field(default_factory=dict)
     extra: dict = field(default_factory=dict)
     label: str | None = None
+
+    def __post_init__(self):
+        if self.rate is None:  # the rate ClosedLoopConfig takes for this robot (its description's)
+            try:
+                self.rate = robot_rate(self.robot)
+            except RobustDrakeError:  # an unknown robot: validate_scenarios names it
+                self.rate = float("nan")
 
     # ------------------------------------------------------------------ identity
     def canonical(self) -> dict:
@@ -151,7 +161,10 @@ class Scenario:
 
     @classmethod
     def from_dict(cls, d: dict) -> "Scenario":
+        """A scenario from plain data; a ClosedLoopConfig field that is no scenario field
+        (``torque_limit``, ``model``, ``metrics_skip``, ...) is an override too (into ``extra``)."""
         known = {f.name for f in fields(cls)}
+        d = _overrides_into_extra(d, known)
         unknown = set(d) - known
         if unknown:
             raise RobustDrakeError(
@@ -198,26 +211,33 @@ class Scenario:
         return json.dumps(d, sort_keys=True, separators=(",", ":"))
 
 
-def _plant_setup_callable(entry):
-    """``["module:function", {params}]`` -> ``f(plant, plant_context)`` (serialisable form of
-    ClosedLoopConfig.plant_setup, e.g. Monte Carlo "true" parameters of a robot)."""
-    import functools
-    import importlib
+def config_only_fields() -> set:
+    """ClosedLoopConfig fields that are not Scenario fields (given to a scenario via ``extra``)."""
+    from robust_drake.diagram import ClosedLoopConfig
 
-    if isinstance(entry, str):
-        target, params = entry, {}
-    elif isinstance(entry, (list, tuple)) and len(entry) in (1, 2) and isinstance(entry[0], str):
-        target, params = entry[0], (dict(entry[1]) if len(entry) == 2 else {})
-    else:
-        raise RobustDrakeError(
-            f"plant_setup entries must be 'module:function' or ['module:function', {{params}}], "
-            f"got {entry!r}")
-    module_name, _, func_name = target.partition(":")
-    try:
-        func = getattr(importlib.import_module(module_name), func_name)
-    except (ImportError, AttributeError) as exc:
-        raise RobustDrakeError(f"plant_setup {target!r} not found: {exc}") from None
-    return functools.partial(func, **params)
+    return {f.name for f in fields(ClosedLoopConfig)} - {f.name for f in fields(Scenario)} - _NOT_COPIED
+
+
+def _overrides_into_extra(d: dict, known: set) -> dict:
+    """``d`` with its ClosedLoopConfig-only keys moved into ``extra`` (a key given both ways is refused)."""
+    moved = {k: d[k] for k in set(d) - known if k in config_only_fields()}
+    if not moved:
+        return d
+    out = {k: v for k, v in d.items() if k not in moved}
+    extra = dict(out.get("extra") or {})
+    twice = sorted(set(extra) & set(moved))
+    if twice:
+        raise RobustDrakeError(f"{twice} given both as a field and in 'extra'")
+    out["extra"] = {**extra, **moved}
+    return out
+
+
+def _plant_setup_callable(entry):
+    """``["module:function", {params}]`` -> ``f(plant, plant_context)``
+    (:func:`robust_drake.diagram.plant_setup_callable`)."""
+    from robust_drake.diagram import plant_setup_callable
+
+    return plant_setup_callable(entry)
 
 
 def _normalise(x):
@@ -302,6 +322,9 @@ def expand_product(spec: dict) -> list[Scenario]:
             axes.append(_choice_entries(field_name, value))
         elif key in scenario_fields:
             defaults[key] = value
+        elif key in config_only_fields():  # a ClosedLoopConfig override for every scenario
+            defaults.setdefault("extra", {})
+            defaults["extra"] = {**defaults["extra"], key: value}
         else:
             raise RobustDrakeError(
                 f"spec: unknown key {key!r}; product keys: {sorted(PRODUCT_KEYS)}, "
@@ -432,7 +455,7 @@ def load_spec(path: str | os.PathLike) -> tuple[list[Scenario], dict]:
             raise RobustDrakeError(f"{path}: expected a mapping or a list of scenarios")
         if "scenarios" in doc:
             defaults = {k: v for k, v in doc.items() if k != "scenarios"}
-            bad = set(defaults) - {f.name for f in fields(Scenario)}
+            bad = set(defaults) - {f.name for f in fields(Scenario)} - config_only_fields()
             if bad:
                 raise RobustDrakeError(
                     f"{path}: with a 'scenarios' list, the other keys must be scenario fields "
@@ -486,7 +509,8 @@ def validate_scenarios(scenarios: Iterable[Scenario]) -> None:
             problems.append(f"{where}: unknown robot {s.robot!r} (known: {', '.join(sorted(ROBOTS))})")
         for kind, name in (("controller", s.controller), ("observer", s.observer),
                            ("trajectory", s.trajectory)):
-            if registry.canonical_or_same(kind, name) not in registry.names(kind):  # any case, paper names
+            if (registry.canonical_or_same(kind, name) not in registry.names(kind)  # any case, paper names
+                    and not (kind == "trajectory" and str(name).lower().endswith(".csv"))):
                 problems.append(f"{where}: unknown {kind} {name!r}{registry.did_you_mean(str(name), registry.names(kind))} "
                                 f"(known: {', '.join(registry.names(kind))})")
         if not (isinstance(s.rate, (int, float)) and math.isfinite(s.rate) and s.rate > 0):

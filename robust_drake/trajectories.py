@@ -459,10 +459,110 @@ def make_line(arm, start=None, end=None, T=2.0, Ta=0.5, hold=0.5, elbow="up"):
 
 
 def make_reference(arm, name: str, **params) -> Reference:
-    """Build the registered trajectory ``name`` for ``arm`` (see :mod:`robust_drake.registry`)."""
+    """Build the registered trajectory ``name`` for ``arm`` (see :mod:`robust_drake.registry`);
+    a name ending in ``.csv`` is a trajectory file (:func:`make_file`, ``path=name``)."""
     from robust_drake.registry import resolve
 
+    if str(name).lower().endswith(".csv"):
+        return make_file(arm, path=name, **params)
     return resolve("trajectory", name)(arm, **params)
+
+
+# --------------------------------------------------------------------------- trajectory files
+def write_trajectory_csv(path, t, q, qd, qdd) -> str:
+    """Write a joint reference as CSV: columns ``t, q1..qn, qd1..qdn, qdd1..qddn`` (s, rad,
+    rad/s, rad/s^2; joints numbered from 1 as in the canonical log CSV of
+    ``identification.data``), one row per sample, each number as the shortest text that reads
+    back the same double.  Returns the path."""
+    import os
+
+    import pandas as pd
+
+    q, qd, qdd = (np.atleast_2d(np.asarray(a, float)) for a in (q, qd, qdd))
+    n = q.shape[1]
+    cols = {"t": np.asarray(t, float)}
+    for name, arr in (("q", q), ("qd", qd), ("qdd", qdd)):
+        for j in range(n):
+            cols[f"{name}{j + 1}"] = arr[:, j]
+    os.makedirs(os.path.dirname(os.path.abspath(str(path))) or ".", exist_ok=True)
+    pd.DataFrame(cols).to_csv(path, index=False)  # shortest repr that reads back the same doubles
+    return str(path)
+
+
+def read_trajectory_csv(path) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(t, q, qd, qdd) of a file written by :func:`write_trajectory_csv` (t (N,), others (N, n)).
+
+    One-line :class:`RobustDrakeError` for a missing file, missing or extra joint columns,
+    non-finite values, or time that does not increase."""
+    import os
+
+    import pandas as pd
+
+    if not os.path.isfile(str(path)):
+        raise RobustDrakeError(f"trajectory file {path} not found")
+    try:
+        df = pd.read_csv(path)
+    except (ValueError, OSError) as exc:
+        raise RobustDrakeError(f"trajectory file {path}: not a CSV ({str(exc).splitlines()[0]})") from None
+    cols = list(df.columns)
+    n = sum(1 for c in cols if c.startswith("q") and c[1:].isdigit())
+    need = ["t"] + [f"{k}{j + 1}" for k in ("q", "qd", "qdd") for j in range(n)]
+    missing = [c for c in need if c not in cols]
+    if n == 0 or missing:
+        raise RobustDrakeError(f"trajectory file {path}: needs columns t, q1..qn, qd1..qdn, qdd1..qddn "
+                               f"(missing {missing[:4] or ['q1']})")
+    arr = df[need].to_numpy(float)
+    if len(arr) < 2 or not np.all(np.isfinite(arr)):
+        raise RobustDrakeError(f"trajectory file {path}: needs at least 2 rows of finite numbers")
+    t = arr[:, 0]
+    if np.any(np.diff(t) <= 0):
+        raise RobustDrakeError(f"trajectory file {path}: time t must increase from row to row")
+    return t, arr[:, 1:1 + n], arr[:, 1 + n:1 + 2 * n], arr[:, 1 + 2 * n:]
+
+
+def quintic_hermite(t, T, Q, QD, QDD):
+    """(q, qd, qdd) at t of the piecewise quintic through the samples (T (N,), Q/QD/QDD (N, n)):
+    on each interval the quintic matching position, velocity and acceleration at both ends
+    (exact for a piecewise quintic; C2 everywhere).  Before the first / after the last sample
+    it holds the end sample's position with zero velocity and acceleration (the file's motion
+    starts and ends at rest)."""
+    t = np.asarray(t, float)
+    scalar = t.ndim == 0
+    tt = np.atleast_1d(t)
+    i = np.clip(np.searchsorted(T, tt, side="right") - 1, 0, len(T) - 2)
+    h = (T[i + 1] - T[i])[:, None]
+    s = np.clip((tt - T[i])[:, None] / h, 0.0, 1.0)
+    p0, v0, a0 = Q[i], QD[i] * h, QDD[i] * h * h
+    p1, v1, a1 = Q[i + 1], QD[i + 1] * h, QDD[i + 1] * h * h
+    # quintic in s: c0 + c1 s + ... + c5 s^5 with the six end conditions
+    c0, c1, c2 = p0, v0, 0.5 * a0
+    c3 = 10 * (p1 - p0) - 6 * v0 - 4 * v1 - 1.5 * a0 + 0.5 * a1
+    c4 = -15 * (p1 - p0) + 8 * v0 + 7 * v1 + 1.5 * a0 - a1
+    c5 = 6 * (p1 - p0) - 3 * v0 - 3 * v1 - 0.5 * a0 + 0.5 * a1
+    q = c0 + s * (c1 + s * (c2 + s * (c3 + s * (c4 + s * c5))))
+    qd = (c1 + s * (2 * c2 + s * (3 * c3 + s * (4 * c4 + s * 5 * c5)))) / h
+    qdd = (2 * c2 + s * (6 * c3 + s * (12 * c4 + s * 20 * c5))) / (h * h)
+    out = np.vstack([tt < T[0], tt > T[-1]]).any(axis=0)
+    if out.any():
+        end = np.where(tt[out] < T[0], 0, len(T) - 1)
+        q[out], qd[out], qdd[out] = Q[end], 0.0, 0.0
+    return (q[0], qd[0], qdd[0]) if scalar else (q, qd, qdd)
+
+
+def make_file(arm, path: str, time_offset: float = 0.0):
+    """A reference read from a trajectory CSV (``t, q1.., qd1.., qdd1..``: what ``robust-drake
+    excite`` writes), interpolated between its rows by :func:`quintic_hermite` (at the file's own
+    stamps the rows exactly); its duration is the file's last stamp minus ``time_offset`` [s]
+    (the file's time ``t = time_offset`` is the loop's t = 0).  The closed loop refuses it
+    like any other reference if it leaves a joint limit (:func:`check_within_limits`)."""
+    T, Q, QD, QDD = read_trajectory_csv(path)
+    if Q.shape[1] != arm.n:
+        raise RobustDrakeError(f"trajectory file {path} has {Q.shape[1]} joints, robot {arm.name} has {arm.n}")
+    T = T - float(time_offset)
+    if T[-1] <= 0:
+        raise RobustDrakeError(f"trajectory file {path}: no samples after time_offset {time_offset:g} s")
+    return Reference(lambda t: quintic_hermite(t, T, Q, QD, QDD), arm.n, float(T[-1]), "file",
+                     {"path": str(path), "rows": int(len(T)), "time_offset": float(time_offset)})
 
 
 def task_space_path(q, link_lengths):

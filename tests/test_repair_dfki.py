@@ -73,6 +73,45 @@ def test_c1_validation_error_drops_on_both_joints(c1_report):
 
 
 @needs_data
+def test_c1_export_urdf_is_the_consistent_model_in_drake(c1_report, tmp_path):
+    """Issue 23: the repaired C.1 model's URDF (to_urdf) loads in Drake; Drake's inverse dynamics
+    of it equals the physically consistent model's rigid-body prediction on the validation
+    states to 1e-9 N m, and to_urdf -> load_export -> predict_torque equals the model's
+    prediction including its effects (presliding friction, in the sidecar)."""
+    from pydrake.multibody.tree import MultibodyForces
+
+    from robust_drake.identification.data import load
+    from robust_drake.model_repair.model import IdentifiedModel
+    from robust_drake.models import make_plant
+    from robust_drake.regressor import InverseDynamicsRegressor
+
+    rep, _ = c1_report
+    model = IdentifiedModel.from_report(rep)
+    out = model.to_urdf(tmp_path / "c1_identified.urdf")
+    cm = model.consistent_model()
+    val = load(sorted(glob.glob(os.path.join(C1, "20230629-154*.csv"))), robot=rep["robot"], n_joints=2, quiet=True)
+    rigid = InverseDynamicsRegressor.from_robot(rep["robot"]).evaluate(val.q, val.qd, val.qdd) @ cm.base_values
+    plant = make_plant(out["urdf"])
+    ctx = plant.CreateDefaultContext()
+    f = MultibodyForces(plant)  # zero: gravity added below, the URDF's damping left out
+    err = 0.0
+    for k in range(0, val.N, 5):
+        plant.SetPositions(ctx, val.q[k])
+        plant.SetVelocities(ctx, val.qd[k])
+        tau = plant.CalcInverseDynamics(ctx, val.qdd[k], f) - plant.CalcGravityGeneralizedForces(ctx)
+        err = max(err, float(np.abs(tau - rigid[k]).max()))
+    assert err < 1e-9, err
+    back = IdentifiedModel.from_export(out["urdf"])
+    full = cm.predict_torque(val.q, val.qd, val.qdd)
+    assert np.abs(back.predict_torque(val.q, val.qd, val.qdd) - full).max() < 1e-9
+    assert [e.kind for e in back.effects] == [e.kind for e in cm.effects]  # presliding friction kept
+    # the exported bodies are the repair's consistent fit (report.json "consistent"), to round-off
+    for name, b in rep["consistent"]["bodies"].items():
+        assert np.allclose(cm.consistent["bodies"][name]["inertia_origin"], b["inertia_origin"], rtol=0, atol=1e-8)
+        assert cm.consistent["bodies"][name]["mass"] == pytest.approx(b["mass"], rel=1e-12)
+
+
+@needs_data
 def test_c1_regressor_noise_is_detected_and_removed(c1_report):
     """Errors in variables: the Hausman test rejects LS on C.1, and the IV estimate's gravity
     parameters move back towards the URDF's (the lab's own identification) and the swing-ups'."""

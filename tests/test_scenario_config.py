@@ -30,6 +30,8 @@ SAMPLE = {
     "plant_setup": [["robust_drake.montecarlo:set_imi_theta", {"theta": [4.69, -0.4, 0.65, -0.09]}]],
     "feedforward": [_feedforward], "divergence_error": 2.5,
     "flexibility": {"J_m": [0.01, 0.01], "k": [1e4, 1e4]},
+    "model": "out/repair/report.json", "plant_model": "out/repair/model.json",
+    "compensation": [_feedforward],
 }
 
 

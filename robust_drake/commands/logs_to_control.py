@@ -1,6 +1,7 @@
 """``robust-drake logs-to-control``: identified confidence set -> CI eq. 15 -> Monte Carlo vs bound.
 
-A simulated arm with a known truth (any URDF arm of actuated revolute joints with gravity: the DFKI
+The demo of the path a user follows with logs of a real arm (simulate-experiment -> identify ->
+``robust-drake control``). A simulated arm with a known truth (any URDF arm of actuated revolute joints with gravity: the DFKI
 C.1, the Siciliano arm, the PUMA 560's first three joints, ...) is identified from a short, noisy
 log, the 1 - alpha chi2 confidence ellipsoid of the base parameters is built
 (``uncertainty.confidence``), Calafiore & Indri's eq. 15 is designed from it, and plants drawn
@@ -77,27 +78,10 @@ def run(args) -> int:
     top = sorted(out["spread"].items(), key=lambda kv: -kv[1])[:5]
     print(f"largest changes of a drawn plant from the truth ({len(out['spread'])} parameters, 5 largest; all "
           "in --json): " + ", ".join(f"{k if len(k) <= 40 else k[:37] + '...'} {100 * v:.3g} %" for k, v in top))
-    print(f"{out['rejected']} draws no rigid body realises were redrawn, "
-          f"{sum(d['projected'] for d in out['draws'])} replaced by the nearest valid point of the set")
-    rc = out["epsilon_rule"].get("recentred")
-    if rc:
-        print(f"the identified centre is no rigid-body arm: eq. 15 is designed on the nearest one in the set "
-              f"(radius {rc['radius']:.3f}) with the set inflated {rc['inflation']:.3g}x to keep all of it")
-    print(f"boundary layer epsilon {out['epsilon_rule']['epsilon']:.4g} (previous rule "
-          f"{out['epsilon_rule']['previous_rule_epsilon']:.4g}); M(q) over {_region(out['region'])}")
-    rows = [[i, d["kind"] + (" (nearest valid)" if d["projected"] else ""), d["radius"], d["bound"], d["max_error"],
-             d["ratio"], "yes" if d["within"] else "NO"] for i, d in enumerate(out["draws"])]
-    print(format_table(rows, ["draw", "where", "radius", "bound [rad]", "max |e| [rad]", "bound / |e|",
-                              "every joint within"]))
-    print(f"PD (same K, Lambda) max |e| after the transient: {out['pd_max_error']:.4g} rad")
+    from robust_drake.commands.control import print_draws
+
+    print_draws(out)
     if plots is not None:
         print(f"figure: {out['plot']}")
     print(f"verdict: {out['verdict']}")
     return 0 if out["guaranteed"] else 1
-
-
-def _region(r) -> str:
-    if r["kind"] == "global":
-        return f"a global grid of joints {r['joints']}"
-    return (f"the reference tube +- {r['delta']} rad (bound {'inside' if r.get('consistent') else 'OUTSIDE'} "
-            "the tube)")

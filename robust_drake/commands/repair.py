@@ -61,7 +61,11 @@ def register(subparsers) -> None:
     p.add_argument("--no-plots", action="store_true", help="do not write PNG plots")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.add_argument("--force", action="store_true",
-                   help="replace an earlier report in --out (its plots are removed with it)")
+                   help="replace an earlier report in --out (its plots are removed with it) and an earlier --export-urdf file")
+    p.add_argument("--export-urdf", metavar="FILE.urdf", default=None,
+                   help="also write the repaired model as a URDF (physically consistent link inertials, rotor "
+                        "inertias, joint friction) and FILE.identified.yaml (friction and the effects a URDF cannot "
+                        "hold); refused when no physically consistent body exists")
     add_output_flags(p, plot="DIR", files="residual_fit.png, residual_validate.png, torque_validate.png "
                                           "(copies of the report's plots in --out)")
     p.set_defaults(func=run)
@@ -95,6 +99,7 @@ def run(args) -> int:
         opts.sigma_rel = args.sigma_rel
     from robust_drake.cli import plot_dir
 
+    _check_export(args)
     if args.plot is not None and args.no_plots:
         raise RobustDrakeError("--plot and --no-plots contradict each other")
     plots = plot_dir(args)
@@ -109,6 +114,7 @@ def run(args) -> int:
 
         rep["plot_copies"] = [str(shutil.copy(os.path.join(args.out, f), plots / os.path.basename(f)))
                               for f in rep.get("plots") or [] if os.path.isfile(os.path.join(args.out, f))]
+    _export(args, rep)
     for w in rep.get("warnings") or []:  # the same list as report.json["warnings"] and report.md
         print(f"warning: {w}", file=sys.stderr)
     if args.json:
@@ -143,4 +149,36 @@ def run(args) -> int:
         print(f"replay RMS q error [rad]: before {[round(x, 4) for x in rp['before']['rms_q']]}, "
               f"after {[round(x, 4) for x in rp['after']['rms_q']]}")
     print(f"report: {os.path.join(args.out, 'report.md')}")
+    _print_export(rep.get("export"))
     return 0
+
+
+def _check_export(args) -> None:
+    """One-line errors for --export-urdf before the repair runs (name, --no-consistent, no overwrite)."""
+    from robust_drake.errors import RobustDrakeError
+
+    if args.export_urdf is None:
+        return
+    if not str(args.export_urdf).lower().endswith(".urdf"):
+        raise RobustDrakeError(f"--export-urdf takes a file name ending in .urdf (got {args.export_urdf!r})")
+    if args.no_consistent:
+        raise RobustDrakeError("--export-urdf writes the physically consistent fit, which --no-consistent switches off")
+    if os.path.exists(args.export_urdf) and not args.force:
+        raise RobustDrakeError(f"{args.export_urdf} exists; pass --force to replace it")
+
+
+def _export(args, rep) -> None:
+    """--export-urdf: the repaired model's URDF + sidecar (``IdentifiedModel.to_urdf``), into rep["export"]."""
+    if args.export_urdf is not None:
+        from robust_drake.model_repair.model import IdentifiedModel
+
+        rep["export"] = IdentifiedModel.from_report(rep).to_urdf(args.export_urdf)
+
+
+def _print_export(ex) -> None:
+    if not ex:
+        return
+    print(f"exported: {ex['urdf']} (+ {ex['sidecar']}: friction"
+          + (f", {', '.join(ex['effects_in_sidecar'])}" if ex["effects_in_sidecar"] else "") + ")")
+    for note in ex["notes"]:
+        print(f"  note: {note}")

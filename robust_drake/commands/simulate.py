@@ -15,7 +15,9 @@ def register(sub):
     p.add_argument("--robot", default="d2r2", help="robot name (URDFs shipped in robust_drake/robots/) or a URDF path (default d2r2)")
     p.add_argument("--load", default="none", help="load variant: none | max (default none)")
     p.add_argument("--controller", default="sp1", help="controller name (pd, sp1, sp2, ...; default sp1)")
-    p.add_argument("--trajectory", default="cpt", help="cpt | circle | refmodel | sine | step | line (default cpt)")
+    p.add_argument("--trajectory", default="cpt",
+                   help="cpt | circle | refmodel | sine | step | line, or a trajectory file FILE.csv (t, q1.., qd1.., "
+                        "qdd1..: what 'robust-drake excite --out' writes) (default cpt)")
     p.add_argument("--trajectory-param", action="append", default=[], metavar="KEY=VALUE",
                    help="a parameter of the trajectory factory, repeatable; VALUE is YAML, e.g. amplitude=0.3, "
                         "offset=[0,0,0,-1.57,0,1.87,0] (sine/step/cpt/refmodel; default offset: q = 0 where "
@@ -35,6 +37,15 @@ def register(sub):
     m.add_argument("--rigid", action="store_true", help="rigid arm (default)")
     m.add_argument("--flexible", action="store_true",
                    help="D2R2 only: two-mass drives, motor-side encoders, link-2 bending (BUILD_NOTES 'Flexible D2R2')")
+    p.add_argument("--model", metavar="REPORT", default=None,
+                   help="the controller's model: a repair's report.json (or its folder) or a model file; SP1, SP2, "
+                        "calafiore and bascetta_a/b take theta0 and their set from it (--json prints them), its "
+                        "friction and effects are compensated")
+    p.add_argument("--plant-model", metavar="REPORT", default=None,
+                   help="simulate the identified arm: its rigid body, friction and effects (a report.json or model file)")
+    p.add_argument("--design", metavar="FILE", default=None,
+                   help="run the loop of a design file written by robust-drake control (its nominal run; "
+                        "--duration still applies, the other loop options come from the file)")
     p.add_argument("--diagram", metavar="FILE", default=None,
                    help="write the closed loop's block diagram: FILE.svg/.png/.pdf (needs Graphviz's dot) "
                         "or FILE.dot (the source)")
@@ -71,14 +82,20 @@ def run(args) -> int:
         from robust_drake.systems.flexibility import d2r2_flexibility
 
         flex = d2r2_flexibility(args.load, robot=args.robot)
-    cfg = ClosedLoopConfig(robot=args.robot, load=args.load, controller=args.controller,
-                           trajectory=args.trajectory, trajectory_params=_key_values(args.trajectory_param,
-                                                                                     "--trajectory-param"),
-                           observer=args.observer, **({} if args.rate is None else {"rate": args.rate}),
-                           duration=args.duration, metrics_skip=_metrics_skip(args),
-                           friction_compensation=args.friction_compensation, flexibility=flex)
+    cfg, design = _design_config(args) if args.design else (None, None)
+    if cfg is None:
+        cfg = ClosedLoopConfig(robot=args.robot, load=args.load, controller=args.controller,
+                               trajectory=args.trajectory, trajectory_params=_key_values(args.trajectory_param,
+                                                                                         "--trajectory-param"),
+                               observer=args.observer, **({} if args.rate is None else {"rate": args.rate}),
+                               duration=args.duration, metrics_skip=_metrics_skip(args),
+                               friction_compensation=args.friction_compensation, flexibility=flex,
+                               model=args.model, plant_model=args.plant_model)
     loop = build_closed_loop(cfg)
-    args.rate = float(loop.config.rate)  # the description's sample rate when --rate is not given
+    c = loop.config
+    args.rate = float(c.rate)  # the description's sample rate when --rate is not given
+    args.robot, args.load, args.trajectory, args.friction_compensation = c.robot, c.load, c.trajectory, c.friction_compensation
+    args.controller = c.to_dict()["controller"]
     import sys
 
     from robust_drake.log import slow_step
@@ -113,6 +130,7 @@ def run(args) -> int:
     rho = getattr(loop.controller, "rho", None)
     out.update(uncertainty=unc, rho=rho if unc is not None else None)
     out["reference"] = dict(loop.reference.params)  # with the offset the joint limits chose
+    out.update(_model_output(args, loop, design))
     if plot:
         out["plots"] = [plot] + ([str(plots / "task_path.png")] if res.link_lengths else [])
     out.update(views)
@@ -174,6 +192,33 @@ def _keep_server(args, meshcat) -> None:
     elif args.meshcat == "live":
         print("meshcat: no terminal, so the live server stops now; keep it up with --meshcat-wait S or "
               "save a replay with --meshcat FILE.html", file=sys.stderr)
+def _model_output(args, loop, design) -> dict:
+    """The identified models and the design file a run used (for --json)."""
+    out = {}
+    if args.model or args.plant_model:
+        out.update(controller_model=args.model, plant_model=args.plant_model,
+                   not_compensated=dict(loop.not_compensated or getattr(loop.controller, "not_compensated", {}) or {}))
+    if design is not None:
+        out.update(design_file=args.design, design_nominal=design.get("nominal"))
+    return out
+
+
+def _design_config(args):
+    """(ClosedLoopConfig, design document) of ``--design FILE``; --duration overrides the file's."""
+    import dataclasses
+
+    import yaml
+
+    from robust_drake.diagram import ClosedLoopConfig
+
+    if args.model or args.plant_model or args.flexible:
+        raise RobustDrakeError("--design takes the whole loop from the file; drop --model / --plant-model / --flexible")
+    cfg = ClosedLoopConfig.from_yaml(args.design)
+    with open(args.design) as fh:
+        doc = yaml.safe_load(fh)
+    if args.duration is not None:
+        cfg = dataclasses.replace(cfg, duration=args.duration)
+    return cfg, doc if isinstance(doc, dict) else {}
 
 
 def _metrics_skip(args) -> float:

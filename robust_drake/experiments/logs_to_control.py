@@ -50,6 +50,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from robust_drake.errors import RobustDrakeError
+from robust_drake.experiments.control import design_eq15, recentre_on_rigid_body  # noqa: F401  (the design's home)
 
 
 def ultimate_error_bound(K, Lambda, epsilon: float, m_min: float, m_max: float) -> float:
@@ -164,17 +165,9 @@ def true_friction(robot, n: int):
     return tuple((c + [c[-1]] * n)[:n]), tuple((v + [v[-1]] * n)[:n])
 
 
-def identify(cfg: LogsToControlConfig, out_dir: str):
-    """Simulated log -> IdentifiedModel (rigid body + friction, no effects) with the estimator the
-    repair's Hausman test chooses: instrumental variables where it flags errors in variables, else
-    least squares (``uncertainty.confidence`` then uses the matching covariance).
-
-    The repair's never-worse rule is switched off here (``never_worse_tol = inf``): it judges the
-    *torque prediction*, for which the attenuated least-squares fit can win on equally noisy
-    validation columns, while a confidence set for the parameters needs the consistent estimate
-    (with the rule on, C.1 keeps least squares with Hausman 503 > 15.1 and the set is refused)."""
-    from robust_drake.model_repair.model import IdentifiedModel
-    from robust_drake.model_repair.pipeline import RepairOptions, run_repair
+def simulate_log(cfg: LogsToControlConfig, out_dir: str) -> str:
+    """The simulated identification experiment of the arm (module docstring, step 1) written to
+    ``out_dir/fit.csv``; returns its path."""
     from robust_drake.model_repair.simulated import simulate_experiment
 
     path = os.path.join(out_dir, "fit.csv")
@@ -183,11 +176,18 @@ def identify(cfg: LogsToControlConfig, out_dir: str):
     simulate_experiment(robot=cfg.robot, duration=cfg.duration, seed=cfg.seed, out_csv=path,
                         torque_noise_std=torque_noise_std(cfg.robot, cfg.noise_fraction),
                         excitation=exc, coulomb=coulomb, viscous=viscous)
-    opts = RepairOptions(robot=cfg.robot, max_effects=0, kinds=[], replay=False, plots=False,
-                         instruments=True, nominal=False, consistent=False,
-                         never_worse_tol=float("inf"))
-    rep = run_repair([path], opts, progress=lambda *_: None)
-    return IdentifiedModel.from_report(rep, "final")
+    return path
+
+
+def identify(cfg: LogsToControlConfig, out_dir: str):
+    """Simulated log -> IdentifiedModel (rigid body + friction, no effects) by plain identification
+    (``rd.identify``: the estimator the Hausman test chooses, instrumental variables where it flags
+    errors in variables, else least squares; ``uncertainty.confidence`` then uses the matching
+    covariance). The log is the one a user would bring: the demo and a real arm follow one path
+    (simulate-experiment -> identify -> control)."""
+    from robust_drake.model_repair.identify import identify as identify_logs
+
+    return identify_logs([simulate_log(cfg, out_dir)], cfg.robot, progress=lambda *_: None)
 
 
 def mass_extremes(robot, setup, q_grid):
@@ -222,7 +222,7 @@ def track_plant(cfg, controller, params, setup):
 def _spread(draws, theta_true, names):
     """Largest |theta_draw_i - theta_true_i| / |theta_true_i| over the draws, per parameter whose
     true value is not zero (relative to the largest parameter: > 1e-6)."""
-    th = np.array([d.theta for d in draws])
+    th = np.array([d["theta"] if isinstance(d, dict) else d.theta for d in draws])
     keep = np.abs(theta_true) > 1e-6 * np.abs(theta_true).max()
     rel = np.abs(th[:, keep] - theta_true[keep]) / np.abs(theta_true[keep])
     return dict(zip([n for n, k in zip(names, keep) if k], rel.max(axis=0).tolist()))
@@ -249,167 +249,40 @@ def identified_set(cfg, out_dir):
     return model, theta0, P, reg, truth, truth_r
 
 
-def design_eq15(cfg, reg, theta0, P):
-    """Eq. 15's parameters from the set: the ellipsoid and the sampled-loop boundary layer
-    (``ultimate_bound.sampled_layer``, with M(q) of theta0 along the loop's reference); returns
-    (controller params, K, Lambda, layer info, reference positions (200, n))."""
-    from robust_drake.experiments.ultimate_bound import mass_matrices, sampled_layer
-    from robust_drake.models import ArmSpec
-    from robust_drake.trajectories import make_reference
-    from robust_drake.uncertainty.ellipsoid import Ellipsoid
-
-    ref = make_reference(ArmSpec(cfg.robot, cfg.robot, reg.n, (), True, None), "sine")
-    t = np.linspace(0.0, cfg.track_duration, 200)
-    q, qd, qdd = (np.asarray(x, float).reshape(-1, reg.n) for x in ref(t))
-    centre, P_ctrl, recentred = theta0, P, None
-    Ms = mass_matrices(reg, theta0, q)
-    if np.linalg.eigvalsh(Ms)[:, 0].min() <= 0:
-        centre, P_ctrl, recentred = recentre_on_rigid_body(reg, theta0, P)
-        Ms = mass_matrices(reg, centre, q)
-        if np.linalg.eigvalsh(Ms)[:, 0].min() <= 0:  # pragma: no cover - a certified rigid body has M > 0
-            raise RobustDrakeError(f"{cfg.robot}: M(q) of the recentred nominal model is not positive definite")
-    ell = Ellipsoid(centre, P_ctrl)
-    ctrl = _closed_loop_controller(cfg, {"ellipsoid": ell})
-    K, Lam = np.asarray(ctrl.K, float), np.asarray(ctrl.Lambda, float)
-    eps = sampled_layer(reg.evaluate(q, qd, qdd), ell.E, Ms, K, 1.0 / cfg.rate)
-    info = {"epsilon": eps, "previous_rule_epsilon": float(ctrl.epsilon),
-            "rule": "sampled-loop margin epsilon = g_max h / (beta - h k_max) (ultimate_bound.sampled_layer)",
-            "recentred": recentred}
-    return {"ellipsoid": ell, "epsilon": eps}, K, Lam, info, q
-
-
-def recentre_on_rigid_body(reg, theta0, P):
-    """(theta_c, P_c, info) for a set whose centre theta0 is no rigid-body arm (its M(q) is not
-    positive definite on the reference, seen on the Panda's light wrist): theta_c = the nearest
-    (P^-1 metric) physically valid point of E(P, theta0) (``plant_draws.NearestPhysical``, certified),
-    at radius r_c < 1, and P_c = (1 + r_c)^2 P. Sound: for every theta in E(P, theta0),
-    ||theta - theta_c||_{P^-1} <= ||theta - theta0||_{P^-1} + ||theta0 - theta_c||_{P^-1} <= 1 + r_c,
-    so E(P, theta0) lies in E(P_c, theta_c), the set eq. 15 is designed for; the price is the
-    factor (1 + r_c) on the set's size."""
-    from robust_drake.experiments.plant_draws import NearestPhysical
-    from robust_drake.uncertainty.confidence import mahalanobis_radius
-
-    pi = NearestPhysical(reg, reg.standard_parameters(), theta0, P)(theta0)
-    if pi is None:
-        raise RobustDrakeError("the identified centre is no rigid-body arm (M(q) not positive definite on "
-                               "the reference) and no physically valid arm was found inside the set")
-    theta_c = np.asarray(reg.K, float) @ pi
-    r_c = mahalanobis_radius(theta0, P, theta_c)
-    return theta_c, (1.0 + r_c) ** 2 * np.asarray(P, float), {
-        "radius": r_c, "inflation": (1.0 + r_c) ** 2,
-        "why": "M(q) of the identified centre is not positive definite on the reference: eq. 15 uses the "
-               "nearest rigid-body arm of the set and the set inflated to keep all of it"}
-
-
-def _closed_loop_controller(cfg, params):
-    from robust_drake.diagram import ClosedLoopConfig, build_closed_loop
-
-    c = ClosedLoopConfig(robot=cfg.robot, controller="calafiore", controller_params=dict(params),
-                         trajectory="sine", rate=cfg.rate, duration=cfg.track_duration, observer="exact")
-    return build_closed_loop(c).controller
-
-
-def _run_draw(cfg, d, params, K, Lam, region, plant, theta0, P, eps_previous):
-    """One drawn plant under eq. 15: its per-joint bound and its errors after the transient, with
-    the factors of the bound (``norm_bound``: the first version's formula at the same epsilon,
-    ``previous_bound``: that formula at the previous rule's epsilon)."""
-    from robust_drake.experiments.ultimate_bound import mass_bounds, norm_bound, per_joint_bound
-    from robust_drake.uncertainty.confidence import mahalanobis_radius
-
-    _, res = track_plant(cfg, "calafiore", params, d.setup)
-    ctx = plant.CreateDefaultContext()
-    d.setup(plant, ctx)
-    mb = mass_bounds(plant, ctx, region, K)
-    bj = per_joint_bound(params["epsilon"], mb, Lam)
-    after = res.t >= cfg.transient
-    if res.diverged or not after.any():  # the run stopped before the transient ended: no bound holds
-        ej = np.full(len(bj), np.inf)
-    else:
-        ej = np.abs(res.q - res.q_d)[after].max(axis=0)
-    return {"kind": d.kind, "radius": mahalanobis_radius(theta0, P, d.theta), "theta": d.theta.tolist(),
-            "projected": bool(d.projected),
-            "bound": max(bj), "max_error": float(ej.max()), "ratio": float(max(bj) / ej.max()),
-            "bound_per_joint": bj, "max_error_per_joint": ej.tolist(),
-            "within": bool(np.all(ej <= np.asarray(bj))), "diverged": bool(res.diverged),
-            "epsilon": float(params["epsilon"]), "norm_bound": norm_bound(params["epsilon"], mb, Lam),
-            "previous_bound": norm_bound(eps_previous, mb, Lam),
-            "kappa": mb.kappa, "k_min_over_m_max": mb.k_min / mb.m_max,
-            "sqrt_m_ratio": float(np.sqrt(mb.m_max / mb.m_min)), "minv": list(mb.minv)}
-
-
 def _covariance_kind(model) -> str:
-    """How the identified model's covariance was estimated (``model.data["covariance"]["kind"]``;
-    least squares without that entry: homoscedastic, inflated by N / N_eff)."""
-    kind = ((model.data or {}).get("covariance") or {}).get("kind")
-    return str(kind) if kind else "N/N_eff-inflated homoscedastic"
+    """How the identified model's covariance was estimated (``experiments.control.covariance_kind``)."""
+    from robust_drake.experiments.control import covariance_kind
+
+    return covariance_kind(model)
 
 
 def run_logs_to_control(cfg: LogsToControlConfig | None = None, out_dir: str | None = None) -> dict:
-    """The whole loop; returns a JSON-able dict (keys ``uncertainty``, ``rho``, ``bound``,
+    """The whole loop as the chain a user follows: simulated experiment -> :func:`identify` ->
+    :func:`robust_drake.experiments.control.run_control` (CI eq. 15, the theorem's frictionless
+    plants: ``friction=False``), plus what only a simulated truth allows (``truth_radius``,
+    ``theta_true``, ``spread``). Returns a JSON-able dict (keys ``uncertainty``, ``rho``, ``bound``,
     ``draws``, ``max_error``, ``truth_radius``, ``pd_max_error``, ``spread``, ``rejected``,
-    ``region``, ``epsilon_rule``)."""
-    from robust_drake.experiments.plant_draws import draw_plants
-    from robust_drake.experiments.ultimate_bound import bound_region
-    from robust_drake.models import make_plant
-
-    from robust_drake.log import progress_bar
+    ``region``, ``epsilon_rule``, ...)."""
+    from robust_drake.experiments.control import ControlConfig, run_control
 
     cfg = cfg or LogsToControlConfig()
     check_arm(cfg.robot)
-    rng = np.random.default_rng(cfg.seed)
-    bar = progress_bar(cfg.draws + 3, "logs-to-control", unit="steps")  # identify, design, draws, PD
-    bar.set_postfix_str("identifying")
     model, theta0, P, reg, truth, truth_r = identified_set(cfg, out_dir)
-    bar.update(1)
-    bar.set_postfix_str("designing CI eq. 15, drawing plants")
-    plant = make_plant(cfg.robot)
-    params, K, Lam, layer, q_ref = design_eq15(cfg, reg, theta0, P)
-    region, region_info = bound_region(plant, q_ref, np.random.default_rng(cfg.seed + 1))
-    plants, rejected = draw_plants(reg, theta0, P, cfg.draws, rng, cfg.boundary_share)
-    bar.update(1)
-    draws = []
-    for i, d in enumerate(plants):
-        bar.set_postfix_str(f"draw {i + 1}/{len(plants)}")
-        draws.append(_run_draw(cfg, d, params, K, Lam, region, plant, theta0, P, layer["previous_rule_epsilon"]))
-        bar.update(1)
-    if region_info["kind"] == "tube":
-        region_info["consistent"] = bool(all(max(d["bound_per_joint"]) <= region_info["delta"] for d in draws))
-    bar.set_postfix_str("PD on the URDF arm")
-    _, pd = track_plant(cfg, "pd", {"K": K.tolist(), "Lambda": Lam.tolist()}, lambda plant, ctx: None)
-    bar.update(1)
-    bar.close()
-    pd_err = float(np.max(np.abs(pd.q - pd.q_d)[pd.t >= cfg.transient]))
-    return {"robot": cfg.robot, "alpha": cfg.alpha, "samples": int(model.data.get("samples", 0)),
-            "estimator": model.estimator,
-            "uncertainty": {"kind": "ellipsoid", "source": f"{1 - cfg.alpha:g} confidence set of the identified "
-                            f"base parameters ({model.estimator}, {_covariance_kind(model)} covariance)",
-                            "parameters": list(model.base_names), "theta0": theta0.tolist(), "P": P.tolist()},
-            "rho": float(np.sqrt(np.linalg.eigvalsh(P)[-1])), "truth_radius": truth_r,
-            "theta_true": truth.tolist(), "bound": max(d["bound"] for d in draws),
-            "max_error": max(d["max_error"] for d in draws), "draws": draws, "rejected": rejected,
-            "spread": _spread(plants, truth, list(reg.base_names)), "pd_max_error": pd_err,
-            "region": region_info, "epsilon_rule": layer, "K": K.tolist(), "Lambda": Lam.tolist(),
-            **verdict(draws, region_info)}
+    out = run_control(model, ControlConfig(controller="ci", alpha=cfg.alpha, draws=cfg.draws,
+                                           boundary_share=cfg.boundary_share, track_duration=cfg.track_duration,
+                                           transient=cfg.transient, rate=cfg.rate, seed=cfg.seed, friction=False),
+                      desc="logs-to-control")
+    out.update(truth_radius=truth_r, theta_true=truth.tolist(), spread=_spread(out["draws"], truth, list(reg.base_names)),
+               **verdict(out["draws"], out["region"]))
+    return out
 
 
 def verdict(draws, region_info) -> dict:
-    """``guaranteed`` (every drawn plant's loop ran to the end and stayed within its per-joint bound,
-    and, where M(q) was bounded over the reference tube, every bound lies inside that tube) and a
-    one-line ``verdict`` saying which condition failed and what to change."""
-    diverged = [i for i, d in enumerate(draws) if d["diverged"] or not np.isfinite(d["max_error"])]
-    outside = [i for i, d in enumerate(draws) if not d["within"] and i not in diverged]
-    reasons = []
-    if diverged:
-        reasons.append(f"the loop of draw(s) {diverged} diverged")
-    if outside:
-        reasons.append(f"draw(s) {outside} left their bound")
-    if region_info.get("kind") == "tube" and not region_info.get("consistent"):
-        reasons.append(f"bounds up to {max(d['bound'] for d in draws):.3g} rad exceed the +-{region_info['delta']} "
-                       "rad tube over which M(q) was bounded")
-    if not reasons:
-        return {"guaranteed": True, "verdict": "every drawn plant stayed within its bound"}
-    return {"guaranteed": False, "verdict": "not shown: " + "; ".join(reasons) + " (the identified set is too "
-            "large for this arm: a longer --duration or a lower --noise-fraction gives a smaller one)"}
+    """``experiments.control.verdict`` with the simulated experiment's remedy."""
+    from robust_drake.experiments.control import verdict as control_verdict
+
+    return control_verdict(draws, region_info, hint="the identified set is too large for this arm: a longer "
+                           "--duration or a lower --noise-fraction gives a smaller one")
 
 
 from robust_drake.plotting import styled  # noqa: E402 - the shared figure style

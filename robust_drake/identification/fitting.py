@@ -10,6 +10,7 @@ in a cycle.
 from __future__ import annotations
 
 import hashlib
+from collections import OrderedDict
 
 import numpy as np
 
@@ -17,6 +18,13 @@ from robust_drake.identification.data import IdentData
 from robust_drake.identification.least_squares import (
     LSResult, friction_columns, parallel_filter, rigid_body_columns, solve_ls, solve_normal,
 )
+
+
+#: bytes of filtered effect columns a ColumnCache keeps (least recently used first out; evicted
+#: columns are rebuilt on demand, their Gram products stay memoised). 163 serial7 candidates hold
+#: ~220 MB at 20k samples (all kept, as before) and ~1.1 GB at 100k (then each is rebuilt at most
+#: once per selection step instead of all being held at once).
+EFFECT_MEMO_BYTES = 320 * 2**20
 
 
 def effect_label(effect) -> str:
@@ -68,13 +76,23 @@ class ColumnCache:
         self.exclude = None if exclude is None or not np.any(exclude) else np.asarray(exclude, bool)
         self.keep = None if self.exclude is None else (~self.exclude).astype(float)
         self.data = data if self.keep is None else data.with_tau(data.tau * self.keep)
-        Yrb, nrb = rigid_body_columns(regressor, data)
-        Yfr, nfr = friction_columns(data)
-        self.base = self._masked(parallel_filter(data, np.concatenate([Yrb, Yfr], axis=2)))
-        del Yrb, Yfr
+        # one (N, n, p) array built in place: regressor rows in blocks, friction, then the filter
+        # column block by column block and the mask (peak = this array plus blocks; the joined
+        # copies of the rigid, friction, filtered and masked columns held 4x it at once)
+        p_rb, n = len(regressor.base_names), data.n
+        base = np.empty((data.N, n, p_rb + 2 * n))
+        _, nrb = rigid_body_columns(regressor, data, out=base[:, :, :p_rb])
+        _, nfr = friction_columns(data, out=base[:, :, p_rb:])
+        parallel_filter(data, base, out=base)
+        if self.keep is not None:
+            base *= self.keep[:, :, None]
+        self.base = base
         self.base_names = nrb + nfr
         self.n_rigid = len(nrb)
-        self._effects: dict = {}
+        self._effects: OrderedDict = OrderedDict()  # key -> (columns, names, effect), LRU order
+        self._held: dict = {}  # key -> effect: the ids in memo keys stay unique after an eviction
+        self._effect_bytes = 0
+        self.memo_bytes = EFFECT_MEMO_BYTES
         self._grams: dict = {}
         self._lefts: dict = {}
         self._last_prediction: tuple = (None, None)
@@ -99,15 +117,27 @@ class ColumnCache:
         return np.sqrt(np.sum(r2 * self.keep, axis=0) / np.maximum(self.keep.sum(axis=0), 1.0))
 
     def effect(self, effect) -> tuple[np.ndarray, list[str]]:
+        """The effect's filtered (and masked) columns (N, n, k) and names, memoised up to
+        ``memo_bytes`` (least recently used evicted; rebuilt identically when asked again)."""
         key = self._key(effect)
-        if key not in self._effects:
-            Y, names = effect.columns(self.source)  # the measured torque, not the zeroed one
-            Y = np.asarray(Y, float)
-            if Y.ndim == 2:
-                Y = Y[:, :, None]
-            self._effects[key] = (np.ascontiguousarray(self._masked(parallel_filter(self.data, Y))), list(names),
-                                  effect)
-        return self._effects[key][:2]
+        hit = self._effects.get(key)
+        if hit is not None:
+            self._effects.move_to_end(key)
+            return hit[:2]
+        Y, names = effect.columns(self.source)  # the measured torque, not the zeroed one
+        Y = np.asarray(Y, float)
+        if Y.ndim == 2:
+            Y = Y[:, :, None]
+        Y = np.ascontiguousarray(self._masked(parallel_filter(self.data, Y)))
+        self._effects[key] = (Y, list(names), effect)
+        self._held[key] = effect
+        self._effect_bytes += Y.nbytes
+        while self._effect_bytes > self.memo_bytes and len(self._effects) > 1:
+            old = next(iter(self._effects))
+            if old == key:
+                break
+            self._effect_bytes -= self._effects.pop(old)[0].nbytes
+        return Y, list(names)
 
     def blocks(self, effects) -> tuple[list[np.ndarray], list, list[slice]]:
         """The column blocks [base, effect 1, ...], their memo keys and their column slices."""
@@ -125,7 +155,9 @@ class ColumnCache:
         """Forget the columns of every effect but ``keep`` and all memoised products (after the
         selection and the nominal comparison: 163 candidates of serial7 hold ~220 MB at 20k samples)."""
         kept = {self._key(e) for e in keep}
-        self._effects = {k: v for k, v in self._effects.items() if k in kept}
+        self._effects = OrderedDict((k, v) for k, v in self._effects.items() if k in kept)
+        self._held = {k: v for k, v in getattr(self, "_held", {}).items() if k in kept}
+        self._effect_bytes = sum(v[0].nbytes for v in self._effects.values())
         self._grams.clear()
         self._lefts.clear()
         self._last_prediction = (None, None)

@@ -37,10 +37,15 @@ RANK_TOL = 1e-6
 COND_WARN = 1e4
 
 
-def friction_columns(data: IdentData) -> tuple[np.ndarray, list[str]]:
-    """Baseline friction columns: Coulomb ``sign(qd_i)`` and viscous ``qd_i`` per joint."""
+def friction_columns(data: IdentData, out: np.ndarray | None = None) -> tuple[np.ndarray, list[str]]:
+    """Baseline friction columns: Coulomb ``sign(qd_i)`` and viscous ``qd_i`` per joint (written
+    into ``out`` (N, n, 2n) when given)."""
     N, n = data.qd.shape
-    Y = np.zeros((N, n, 2 * n))
+    if out is None:
+        Y = np.zeros((N, n, 2 * n))
+    else:
+        Y = out
+        Y[...] = 0.0
     names = []
     for i in range(n):
         Y[:, i, 2 * i] = np.sign(data.qd[:, i])
@@ -58,13 +63,18 @@ FILTER_COLUMNS = 64
 REGRESSOR_ROWS = 2048
 
 
-def parallel_filter(data: IdentData, Y: np.ndarray) -> np.ndarray:
+def parallel_filter(data: IdentData, Y: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
     """Apply the torque's zero-phase filter to regressor columns, segment by segment (each column
-    is filtered on its own: done in blocks of ``FILTER_COLUMNS`` columns)."""
+    is filtered on its own: done in blocks of ``FILTER_COLUMNS`` columns).  ``out`` (the shape of
+    Y, may be Y itself: each block is read before it is written) receives the result; without it a
+    new array is returned (Y itself when there is nothing to filter)."""
     cutoff = data.filter.cutoff_hz
     if cutoff is None or data.filter.derivatives == "given":
+        if out is not None and out is not Y:
+            out[...] = Y
+            return out
         return Y
-    out = np.empty(Y.shape)
+    out = np.empty(Y.shape) if out is None else out
     flat_in, flat_out = Y.reshape(Y.shape[0], -1), out.reshape(Y.shape[0], -1)
     for s in np.unique(data.segment):
         idx = np.nonzero(data.segment == s)[0]
@@ -222,14 +232,24 @@ def solve_wls(Y, tau, names, iterations: int = 2, tol: float = RANK_TOL, warn: b
     return res
 
 
-def rigid_body_columns(regressor, data: IdentData) -> tuple[np.ndarray, list[str]]:
-    """Drake-derived base-parameter columns ``(N, n, p_base)`` and their names."""
-    pieces = max(1, data.N // REGRESSOR_ROWS)
-    parts = zip(*(np.array_split(x, pieces) for x in (data.q, data.qd, data.qdd)))
-    Y = np.concatenate([np.asarray(regressor.evaluate(q, qd, qdd), float) for q, qd, qdd in parts])
-    if Y.ndim != 3 or Y.shape[:2] != data.q.shape:
-        raise DataError(f"regressor returned shape {Y.shape}, expected ({data.N}, {data.n}, p)")
-    return Y, list(regressor.base_names)
+def rigid_body_columns(regressor, data: IdentData, out: np.ndarray | None = None) -> tuple[np.ndarray, list[str]]:
+    """Drake-derived base-parameter columns ``(N, n, p_base)`` and their names, evaluated in blocks
+    of ``REGRESSOR_ROWS`` samples written into ``out`` (N, n, p_base) when given (e.g. a slice of
+    the ColumnCache's base block: no second full-size array), else into a new array."""
+    names = list(regressor.base_names)
+    shape = (data.N, data.n, len(names))
+    Y = np.empty(shape) if out is None else out
+    if Y.shape != shape:
+        raise DataError(f"rigid_body_columns: out has shape {Y.shape}, expected {shape}")
+    edges = np.linspace(0, data.N, max(1, data.N // REGRESSOR_ROWS) + 1).round().astype(int)
+    for a, b in zip(edges[:-1], edges[1:]):  # blocks of >= REGRESSOR_ROWS rows (no short tail)
+        rows = slice(int(a), int(b))
+        block = np.asarray(regressor.evaluate(data.q[rows], data.qd[rows], data.qdd[rows]), float)
+        if block.shape != (rows.stop - rows.start,) + shape[1:]:
+            raise DataError(f"regressor returned shape {block.shape} for {rows.stop - rows.start} samples, "
+                            f"expected ({rows.stop - rows.start}, {data.n}, {len(names)})")
+        Y[rows] = block
+    return Y, names
 
 
 def load_regressor(robot):

@@ -434,6 +434,6 @@ def effects_from_report(report: dict) -> list:
 
 def closed_loop_effects(report: dict, sample_period: float = 1e-3) -> list:
     """Plant-side effect block factories ``f(ctx) -> LeafSystem`` for ``ClosedLoopConfig.effects``
-    (:meth:`IdentifiedModel.closed_loop_effects`). Plant-modifying effects (rotor_inertia,
-    payload) have no block: apply them with ``effects.load_plant(robot, effects_from_report(report))``."""
+    (:meth:`IdentifiedModel.closed_loop_effects`). A model with plant-modifying effects (rotor_inertia,
+    payload) is refused: ``ClosedLoopConfig(plant_model=report_path)`` applies them too."""
     return IdentifiedModel.from_report(report).closed_loop_effects(sample_period)

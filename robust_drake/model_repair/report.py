@@ -106,11 +106,12 @@ def build_report(res: RepairResult) -> dict:
         "samples": int(inp.fit.N),
         "samples_validate": int(inp.val.N),
         "torque": res.opts.torque,
-        "baseline": {"rms_fit": _rms(base.fit.residual), "rms_validate": base.rms_validate,
+        # rms_fit over the rows the fit uses (stuck rows left out: ColumnCache.rms), as predict scores it
+        "baseline": {"rms_fit": inp.cf.rms(base.fit.residual).tolist(), "rms_validate": base.rms_validate,
                      "parameters": ident["parameters"], "standard_errors": ident["standard_errors"]},
         "effects": fin.effects_out,
         "rejected_effects": [{**d, "kept": False} for d in res.guard.dropped],
-        "final": {"rms_fit": _rms(fin.fit.residual), "rms_validate": _rms(fin.val_residual),
+        "final": {"rms_fit": inp.cf.rms(fin.fit.residual).tolist(), "rms_validate": _rms(fin.val_residual),
                   "parameters": fin.fit.as_dict()["parameters"],
                   "standard_errors": fin.fit.as_dict()["standard_errors"]},
         **verdict(res),
@@ -153,7 +154,7 @@ def _reference(res: RepairResult):
 
 
 def _models(res: RepairResult):
-    return identified_models(res.inputs, res.baseline, res.estimator, res.selection, res.final)
+    return identified_models(res.inputs, res.baseline, res.estimator, res.selection, res.final, res.consistent)
 
 
 #: at most this many validation segments get a column in ``torque_validate.png``

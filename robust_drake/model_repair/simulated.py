@@ -166,9 +166,11 @@ def build_experiment(robot, effects, excitation: dict, rng_ref, coulomb, viscous
     builder = DiagramBuilder()
     plant = load_plant(robot, effects, time_step=0.0, builder=builder)
     n = plant.num_velocities()
-    amp = np.broadcast_to(np.asarray(exc["amplitude"], float), (n,))
-    ref = FourierReference.random(n, rng_ref, amp, exc["base_frequency"], exc["harmonics"],
-                                  exc["offset"])
+    ref = exc.get("reference")  # a designed motion f(t) -> (q, qd, qdd) (robust-drake excite)
+    if ref is None:
+        amp = np.broadcast_to(np.asarray(exc["amplitude"], float), (n,))
+        ref = FourierReference.random(n, rng_ref, amp, exc["base_frequency"], exc["harmonics"],
+                                      exc["offset"])
 
     # PD gains from the mass matrix at the reference's start (decoupled error dynamics there).
     ctx0 = plant.CreateDefaultContext()
@@ -204,7 +206,8 @@ def simulate_experiment(robot=DEFAULT_ROBOT, effects=(), duration=15.0, rate_hz=
         ``{"stribeck_torque": 0.1, "stribeck_velocity": 0.15}``).
     excitation: dict overriding ``amplitude`` (rad per joint), ``base_frequency`` (Hz),
         ``harmonics``, ``bandwidth_hz``, ``offset``, ``seed`` (reference seed; default ``seed``),
-        ``torque_limit``.
+        ``torque_limit``; or ``reference``: a motion ``f(t) -> (q, qd, qdd)`` to track instead of
+        the random Fourier sum (e.g. ``robust_drake.excitation.design_excitation(...)``).
     extra_blocks: factories ``f(n) -> LeafSystem`` with input ``state`` (and optionally
         ``tau``) and output ``generalized_force``: effects outside the library.
     Returns a DataFrame with columns ``t, q1..qn, tau1..taun`` (+ ``qd1..qdn``); writes it to

@@ -638,14 +638,24 @@ def replay_guard(inp: Inputs, base: Baseline, est: Estimator, sel: Selection, gu
         log(f"never worse: dropped {guard.dropped[-1]['label']}: {why}")
 
 
-def identified_models(inp: Inputs, base: Baseline, est: Estimator, sel: Selection, fin: Final):
-    """(baseline, final) :class:`~robust_drake.model_repair.model.IdentifiedModel` of the repair."""
+def identified_models(inp: Inputs, base: Baseline, est: Estimator, sel: Selection, fin: Final,
+                      cons: "Consistent | None" = None):
+    """(baseline, final) :class:`~robust_drake.model_repair.model.IdentifiedModel` of the repair;
+    with ``cons`` each carries its physically consistent fit (``IdentifiedModel.consistent``)."""
     from robust_drake.model_repair.model import IdentifiedEffect, IdentifiedModel
 
     p0 = len(inp.regressor.base_names)
     summary = inp.fit.summary()
 
-    def model(fitres, effects, slices, method):
+    def consistent(cr, fitres, effects, slices):
+        if cr is None:
+            return None
+        fc, fv = friction_of(cr.theta, fitres.names, inp.fit.n)
+        return {**cr.as_dict(), "base_values": [float(x) for x in cr.theta[:p0]],
+                "coulomb": [float(x) for x in fc], "viscous": [float(x) for x in fv],
+                "effect_coefficients": [[float(c) for c in cr.theta[s]] for s in slices]}
+
+    def model(fitres, effects, slices, method, cr=None):
         fc, fv = friction_of(fitres.theta, fitres.names, inp.fit.n)
         cov = getattr(fitres, "cov", None)
         effs = [IdentifiedEffect(e.kind, e.joint, _plain(e.parameters(fitres.theta[s])),
@@ -658,9 +668,11 @@ def identified_models(inp: Inputs, base: Baseline, est: Estimator, sel: Selectio
             data={**{k: summary[k] for k in ("samples", "joints", "dt", "sources", "filter")},
                   "errors_in_variables": est.report.get("hausman"),  # read by uncertainty.confidence
                   "covariance": {"kind": getattr(fitres, "covariance", "homoscedastic"),
-                                 "parameters": int(len(fitres.theta))}})
+                                 "parameters": int(len(fitres.theta))}},
+            consistent=consistent(cr, fitres, effects, slices))
 
-    return (model(base.fit, [], [], "least_squares"), model(fin.fit, sel.chosen, fin.slices, est.method))
+    return (model(base.fit, [], [], "least_squares", getattr(cons, "base", None)),
+            model(fin.fit, sel.chosen, fin.slices, est.method, getattr(cons, "final", None)))
 
 
 def _plain(d: dict) -> dict:

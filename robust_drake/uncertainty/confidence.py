@@ -92,7 +92,8 @@ def confidence_ellipsoid(model, alpha: float = 0.01) -> tuple[np.ndarray, np.nda
     if not 0.0 < alpha < 1.0:
         raise RobustDrakeError(f"alpha must lie in (0, 1), got {alpha}")
     if model.base_covariance is None:
-        raise RobustDrakeError("the identified model carries no base-parameter covariance")
+        raise RobustDrakeError("the identified model carries no base-parameter covariance, so it has no confidence "
+                               "set (a URDF export keeps none): use the repair's report.json")
     theta0 = np.asarray(model.base_values, float).reshape(-1)
     S = np.asarray(model.base_covariance, float)
     p = theta0.size

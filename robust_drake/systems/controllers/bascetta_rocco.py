@@ -69,7 +69,7 @@ class ModelDynamics:
     ``mass_scale`` maps body names to mass factors applied to the context (the perturbed model).
     """
 
-    def __init__(self, robot: str, mass_scale: dict | None = None, load: str = "none"):
+    def __init__(self, robot: str, mass_scale: dict | None = None, load: str = "none", setup=None):
         from robust_drake.models import make_plant
 
         self.plant = make_plant(robot, load)
@@ -84,6 +84,8 @@ class ModelDynamics:
             if not k > 0:
                 raise RobustDrakeError(f"mass factor for {body!r} must be positive (got {k})")
             b.SetMass(self.context, b.get_mass(self.context) * float(k))
+        if setup is not None:  # e.g. an identified rigid body (IdentifiedModel / plant_draws.plant_setup)
+            setup(self.plant, self.context)
         self._x = np.zeros(2 * self.n)
 
     def M(self, q):
@@ -255,16 +257,74 @@ def default_boundary(beta0: float, period: float) -> float:
     return max(DEFAULT_BOUNDARY, float(beta0) * float(period))
 
 
-def _make(ctx, case, K_P=25.0, K_D=5.0, perturbation=None, boundary=None, region="trajectory",
-          tube=0.1, Q=None, delta=None, gamma=None, beta=None, mass_model=None, n_time=None):
+def identified_design(ctx, model, K_P=25.0, K_D=5.0, region="trajectory", tube=0.1, n_time=None, Q=None,
+                      delta=None, gamma=None, margin=1.1, alpha=0.01, truths=6):
+    """What Cases A and B need when the controller's model is an identified one (``model=``): M_hat(q)
+    and n_hat(q, qd) = C qd + g of the identified rigid body (``IdentifiedModel`` realised as URDF
+    inertias), and the bounds of BR eqs. 9-11 as the worst over candidate true plants of its
+    1 - ``alpha`` confidence set: the centre and ``truths`` plants drawn on the set's boundary
+    (``experiments.plant_draws``, seed 0), each physically valid (sampled, not certified: a plant
+    inside the set between them is not checked)."""
+    import dataclasses as dc
+
+    from robust_drake.analysis.bascetta_bounds import beta_case_a, beta_case_b, compute_bounds, sample_configurations
+    from robust_drake.analysis.lyapunov import lyapunov_design
+    from robust_drake.analysis.riccati import design_riccati
+    from robust_drake.experiments.plant_draws import draw_plants
+    from robust_drake.model_repair.model import as_identified_model, controller_set, realise_base_parameters
+    from robust_drake.experiments.plant_draws import plant_setup
+    from robust_drake.models import get_arm
+    from robust_drake.regressor import InverseDynamicsRegressor
+    from robust_drake.trajectories import make_reference
+
+    m = as_identified_model(model)
+    reg = InverseDynamicsRegressor.from_robot(ctx.robot, ctx.load)
+    theta0, P, unc = controller_set(m, reg, alpha)
+    centre = plant_setup(reg, realise_base_parameters(m, reg)[0])
+    hat = ModelDynamics(ctx.robot, None, ctx.load, setup=centre)
     c = ctx.config
-    d = case_study_design(ctx.robot, c.trajectory, c.trajectory_params, K_P, K_D, perturbation, region, tube,
-                          n_time=n_time, Q=Q, delta=delta, gamma=gamma, load=ctx.load, mass_model=mass_model)
+    ref = make_reference(get_arm(ctx.robot) if isinstance(ctx.robot, str) else ctx.arm, c.trajectory,
+                         **dict(c.trajectory_params))
+    t = np.arange(0.0, ref.duration + 1e-12, 1e-3)
+    q_d, qd_d, qdd_d = ref(t)
+    nt = n_time if n_time is not None else (120 if hat.n <= 3 else 40)
+    configs = sample_configurations(region, hat.n, q_d=q_d[np.linspace(0, len(t) - 1, nt).round().astype(int)], tube=tube)
+    draws, _ = draw_plants(reg, theta0, P, int(truths), np.random.default_rng(0), boundary_share=1.0)
+    all_b = [compute_bounds(true.M, true.n_term, hat.n_term, hat.M, configs, qd_d, qdd_d, region=region)
+             for true in [hat] + [ModelDynamics(ctx.robot, None, ctx.load, setup=d.setup) for d in draws]]
+    G, L, cq = (max(getattr(b, k) for b in all_b) for k in ("G", "L", "c"))
+    b0 = all_b[0]
+    bounds = dc.replace(b0, alpha=max(b.alpha for b in all_b), B_m=min(b.B_m for b in all_b),
+                        B_M=max(b.B_M for b in all_b), G=G, L=L, c=cq, alpha_0=G + L * b0.V_M + cq * b0.V_M ** 2,
+                        alpha_1=L + 2 * cq * b0.V_M, alpha_2=cq, n_configs=b0.n_configs * len(all_b))
+    kp, kd = diag_gain(K_P, hat.n, "K_P"), diag_gain(K_D, hat.n, "K_D")
+    return {"M_hat": hat.M, "bounds": bounds, "lyapunov": lyapunov_design(np.diag(kp), np.diag(kd), Q),
+            "riccati": design_riccati(np.diag(kp), np.diag(kd), alpha=bounds.alpha, delta=delta, gamma=gamma,
+                                      margin=margin),
+            "beta_A": beta_case_a(bounds, np.diag(kp), np.diag(kd)), "beta_B": beta_case_b(bounds),
+            "perturbation": {}, "K_P": kp, "K_D": kd, "region": region, "tube": tube, "mass_model": "model",
+            "identified": {"model": m, "setup": centre, "set": unc, "truths": 1 + len(draws)}}
+
+
+def _make(ctx, case, K_P=25.0, K_D=5.0, perturbation=None, boundary=None, region="trajectory",
+          tube=0.1, Q=None, delta=None, gamma=None, beta=None, mass_model=None, n_time=None, model=None,
+          alpha=0.01):
+    c = ctx.config
+    if model is not None:
+        if perturbation is not None or mass_model not in (None, "model"):
+            raise RobustDrakeError(f"bascetta_{case.lower()}: with 'model' the controller's model is the identified "
+                                   "one (no 'perturbation' or mass_model)")
+        d = identified_design(ctx, model, K_P, K_D, region, tube, n_time, Q, delta, gamma, alpha=alpha)
+    else:
+        d = case_study_design(ctx.robot, c.trajectory, c.trajectory_params, K_P, K_D, perturbation, region, tube,
+                              n_time=n_time, Q=Q, delta=delta, gamma=gamma, load=ctx.load, mass_model=mass_model)
     BtP = d["lyapunov"].BtP if case == "A" else d["riccati"].BtP
     beta = beta if beta is not None else (d["beta_A"] if case == "A" else d["beta_B"])
     if boundary is None:
         boundary = default_boundary(beta[0], ctx.period)
-    n_hat = ModelDynamics(ctx.robot, d["perturbation"], ctx.load)  # own context per controller
+    ident = d.get("identified")
+    n_hat = ModelDynamics(ctx.robot, d["perturbation"], ctx.load,  # own context per controller
+                          setup=None if ident is None else ident["setup"])
     M_hat = n_hat.M if d["mass_model"] == "model" else d["M_hat"]
     ctrl = BascettaRoccoController(ctx.n, ctx.period, d["K_P"], d["K_D"], M_hat, n_hat, BtP, beta,
                                    boundary, name=f"bascetta_{case.lower()}", design=d)
@@ -275,6 +335,13 @@ def _make(ctx, case, K_P=25.0, K_D=5.0, perturbation=None, boundary=None, region
         "perturbation": d["perturbation"], "mass_model": d["mass_model"], "bounds": b.to_dict(),
         "beta": [float(x) for x in beta], "case": case, "boundary": float(boundary)}
     ctrl.rho = float(beta[0])  # rho(||e||) at e = 0; the full polynomial is in uncertainty["beta"]
+    if ident is not None:  # the identified model: its set and its friction / effects compensated
+        from robust_drake.model_repair.model import attach_compensation
+
+        ctrl.uncertainty.update(source="sampled over the trajectory region against the identified model's "
+                                f"{1 - alpha:g} set (its centre and {ident['truths'] - 1} boundary plants); "
+                                "controller model = the identified rigid body", identified_set=ident["set"])
+        attach_compensation(ctrl, ident["model"])
     return ctrl
 
 
@@ -284,5 +351,7 @@ def make_bascetta_a(ctx, **params):
 
 
 def make_bascetta_b(ctx, **params):
-    """Registry factory: Case B (Riccati design, BR eqs. 17-20)."""
+    """Registry factory: Case B (Riccati design, BR eqs. 17-20). ``model`` (an identified model or a
+    report / model path): M_hat, n_hat of its rigid body, bounds over its ``alpha`` set
+    (:func:`identified_design`), its friction and effects compensated."""
     return _make(ctx, "B", **params)

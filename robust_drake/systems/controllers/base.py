@@ -53,6 +53,13 @@ class DiscreteController(LeafSystem):
         self.DeclarePeriodicDiscreteUpdateEvent(self.period, 0.0, self._update)
         self.DeclareStateOutputPort("u", self._u_index)
         self._feedforward = []
+        self._inputs_port = None  # [x_d, q, v, v_error] in one port (enable_fused_input)
+
+    def enable_fused_input(self):
+        """Declare input ``inputs`` = [x_d, q, v, v_error] (6n), read by the per-tick update instead
+        of the four contract ports: one ``Eval`` per tick (``spong.FusedInputController`` feeds it
+        from a C++ Multiplexer and exports the four contract ports)."""
+        self._inputs_port = self.DeclareVectorInputPort("inputs", 6 * self.n)
 
     def add_feedforward(self, f) -> None:
         """Add ``f(q, v) -> n torques`` [N m] to every sample's command, computed in the same tick
@@ -66,6 +73,14 @@ class DiscreteController(LeafSystem):
 
     def _update(self, context, discrete_state):
         n = self.n
+        if self._inputs_port is not None:  # one Eval of [x_d, q, v, v_error]
+            x = self._inputs_port.Eval(context)
+            q, v = x[3 * n:4 * n], x[4 * n:5 * n]
+            u = self.compute(context.get_time(), x[:n], x[n:2 * n], x[2 * n:3 * n], q, v, x[5 * n:])
+            if self._feedforward:
+                u = np.asarray(u, dtype=float) + sum(np.asarray(f(q, v), dtype=float) for f in self._feedforward)
+            discrete_state.get_mutable_vector(self._u_index).get_mutable_value()[:] = u
+            return
         x_d = self._x_d_port.Eval(context)
         u = self.compute(
             context.get_time(),

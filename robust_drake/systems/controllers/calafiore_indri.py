@@ -174,7 +174,17 @@ def ellipsoid_design(ctx, p: dict):
         raise RobustDrakeError(f"regressor of {ctx.robot!r} has {reg.n} joints, the loop has {ctx.n}")
     box = {k: float(p.pop(k)) for k in ("rel_bound", "abs_bound") if k in p}
     ell = p.pop("ellipsoid", None)
-    if ell is not None:
+    model, alpha, extra = p.pop("model", None), float(p.pop("alpha", 0.01)), {}
+    if model is not None:  # an identified model: theta0 and E(P, theta0) = its confidence set
+        from robust_drake.model_repair.model import as_identified_model, controller_set
+
+        if ell is not None or "theta0" in p or "P" in p:
+            raise RobustDrakeError("calafiore: give either 'model' or 'ellipsoid' / 'theta0' / 'P', not both")
+        p["_model"] = as_identified_model(model)
+        theta0, P, extra = controller_set(p["_model"], reg, alpha)
+        source = extra.pop("source")
+        extra = {k: extra[k] for k in ("alpha", "model")}
+    elif ell is not None:
         from robust_drake.uncertainty.ellipsoid import Ellipsoid
 
         ell = ell if isinstance(ell, Ellipsoid) else Ellipsoid.load(ell)
@@ -197,7 +207,7 @@ def ellipsoid_design(ctx, p: dict):
             f"(InverseDynamicsRegressor.base_names) and P be {m}x{m}; got {theta0.shape} and {P.shape}")
     E = sqrtm_psd(P)
     unc = {"kind": "ellipsoid", "source": source, "parameters": list(reg.base_names),
-           "theta0": theta0.tolist(), "P": P.tolist(), **box,
+           "theta0": theta0.tolist(), "P": P.tolist(), **box, **extra,
            "rho": float(np.sqrt(max(np.linalg.eigvalsh(0.5 * (P + P.T))[-1], 0.0)))}
     return reg, theta0, E, unc
 
@@ -206,6 +216,7 @@ def _make_any_arm(ctx, robust, p):
     from robust_drake.systems.controllers.spong import default_gains
 
     reg, theta0, E, unc = ellipsoid_design(ctx, p)
+    model = p.pop("_model", None)
     K0, L0 = default_gains(ctx)
     p.setdefault("K", K0)
     p.setdefault("Lambda", L0)
@@ -223,7 +234,11 @@ def _make_any_arm(ctx, robust, p):
         raise RobustDrakeError(f"calafiore: {exc}") from None
     c.uncertainty = unc
     c.rho = unc["rho"] if robust else None
-    return c
+    if model is not None:  # its friction and effects fed forward, stateful ones as blocks
+        from robust_drake.model_repair.model import attach_compensation
+
+        attach_compensation(c, model)
+    return _fused(c)
 
 
 def _reference_regressors(ctx, reg, samples: int = 200) -> np.ndarray:
@@ -244,7 +259,7 @@ def _make(ctx, robust, params):
     p = dict(params)
     reg = p.pop("regressor", None)
     if reg is None:
-        if describe(ctx.robot).closed_form_regressor != "imi_scara":  # CI section 5 model
+        if describe(ctx.robot).closed_form_regressor != "imi_scara" or "model" in p:  # CI section 5 model
             return _make_any_arm(ctx, robust, p)
         reg = imi_scara_control_regressor
     if "theta0" not in p:
@@ -264,11 +279,21 @@ def _make(ctx, robust, params):
         c.uncertainty = {"kind": "ellipsoid", "source": "CI section 5.1" if "P" not in params else "user P",
                          "theta0": np.asarray(p["theta0"], float).tolist()}
         c.rho = float(np.linalg.norm(c.E, 2)) if robust else None
-    return c
+    return _fused(c)
+
+
+def _fused(c):
+    """The closed loop's block: the four contract ports gathered by one C++ Multiplexer, so the
+    per-tick update reads one port (spong.FusedInputController; same torque, tests/test_compiled_blocks.py)."""
+    from robust_drake.systems.controllers.spong import FusedInputController
+
+    return FusedInputController(c)
 
 
 def make_calafiore(ctx, **params):
-    """Registry factory: robust law (eqs. 6-8, 15); defaults: published theta0, P (CI sec. 5.1)."""
+    """Registry factory: robust law (eqs. 6-8, 15); defaults: published theta0, P (CI sec. 5.1).
+    ``model`` (an identified model or a report / model path): theta0 and P from its ``alpha``
+    (0.01) confidence set, and its compensation (friction, effects)."""
     return _make(ctx, True, params)
 
 

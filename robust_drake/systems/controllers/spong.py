@@ -205,12 +205,6 @@ class _SpongController(DiscreteController):
         self._Lam, self._K, self._theta0 = self.Lambda.tolist(), self.K.tolist(), self.theta0.tolist()
         self.scalar_fast_path = bool(scalar_fast_path)
         self.uncertainty = None  # the parameter set rho comes from (set by the factories)
-        self._inputs_port = None  # [x_d, q, v, v_error] in one port (FusedInputController)
-
-    def enable_fused_input(self):
-        """Declare input ``inputs`` = [x_d, q, v, v_error] (6n), read by the per-tick update instead
-        of the four contract ports (:class:`FusedInputController` feeds it from a C++ Multiplexer)."""
-        self._inputs_port = self.DeclareVectorInputPort("inputs", 6 * self.n)
 
     def robust_input(self, xi):  # pragma: no cover - abstract
         raise NotImplementedError
@@ -260,7 +254,7 @@ class _SpongController(DiscreteController):
 
 
 class FusedInputController(Diagram):
-    """The controller block of a scalar-path SP1/SP2 controller ``law``: ports ``x_d``, ``q``, ``v``,
+    """The controller block of a :class:`DiscreteController` ``law`` (SP1/SP2, CI): ports ``x_d``, ``q``, ``v``,
     ``v_error`` -> ``u`` as the contract says, gathered inside by one C++ Multiplexer into the law's
     ``inputs`` port, so the per-tick Python update reads one port instead of four (about 3 us per
     2500 Hz tick, BUILD_NOTES "Speed of the 2500 Hz loop"); same torque
@@ -546,6 +540,8 @@ def _spong_design(ctx, params, which):
     the URDF (:meth:`InverseDynamicsRegressor.slotine_li_single`) with theta0 = the URDF's base
     parameters and rho from :func:`box_uncertainty`."""
     box = {k: params.pop(k) for k in ("rel_bound", "abs_bound") if k in params}
+    if "model" in params:  # an identified model: theta0 and rho from its confidence set
+        return _identified_design(ctx, params, which, box)
     if "regressor" in params:
         from robust_drake.models import D2R2_THETA0
 
@@ -575,6 +571,37 @@ def _spong_design(ctx, params, which):
                                f"(InverseDynamicsRegressor.base_names), got shape {theta0.shape}")
     unc = box_uncertainty(theta0, reg.base_names, **box)
     rho = params.pop("rho", (unc["rho_sp1"], unc["rho_sp2"])[which])
+    _epsilon_rule(ctx, params, reg, rho, unc)
+    return reg.slotine_li_single, theta0, rho, unc, False
+
+
+def _identified_design(ctx, params, which, box):
+    """:func:`_spong_design` for ``model=`` (an IdentifiedModel or a report / model path): theta0 =
+    its base parameters, SP1's rho = sqrt(lambda_max(P)) and SP2's rho_i = sqrt(P_ii) of its
+    1 - ``alpha`` confidence set E(P, theta0) (the largest ||theta~||_2 and |theta~_i| over it),
+    or the box of ``rel_bound``/``abs_bound`` around its theta0; boundary layer by the same rule."""
+    from robust_drake.model_repair.model import as_identified_model, controller_set
+    from robust_drake.regressor import InverseDynamicsRegressor
+
+    model = as_identified_model(params.pop("model"))
+    alpha = float(params.pop("alpha", 0.01))
+    reg = InverseDynamicsRegressor.from_robot(ctx.robot, ctx.load)
+    theta0, _, unc = controller_set(model, reg, alpha) if not box else (None, None, None)
+    if box:
+        theta0 = np.asarray(model.base_values, float)
+        unc = box_uncertainty(theta0, reg.base_names, **box)
+        unc["source"] = "identified base parameters +- rel_bound |theta0_i| + abs_bound"
+    else:
+        unc.update(rho_sp1=unc["rho"], rho_sp2=unc["rho_i"])
+    rho = params.pop("rho", (unc["rho_sp1"], unc["rho_sp2"])[which])
+    _epsilon_rule(ctx, params, reg, rho, unc)
+    params["_model"] = model
+    return reg.slotine_li_single, theta0, rho, unc, False
+
+
+def _epsilon_rule(ctx, params, reg, rho, unc) -> None:
+    """The boundary layer for an arm without a published one (:func:`default_epsilon`), into
+    ``params["epsilon"]`` unless given, and its record into ``unc["epsilon_rule"]``."""
     if "epsilon" not in params:
         K, Lam = params.get("K", default_gains(ctx)[0]), params.get("Lambda", default_gains(ctx)[1])
         tube = reference_tube(ctx, reg, K)
@@ -586,12 +613,12 @@ def _spong_design(ctx, params, which):
             "beta": SAMPLED_BETA, "g_max": None if tube is None else tube.g_max,
             "epsilon": np.asarray(eps).tolist(),
             "error_bound": None if tube is None else spong_ultimate_bound(rho_eps, tube, Lam)}
-    return reg.slotine_li_single, theta0, rho, unc, False
 
 
 def _make_spong(ctx, params, which):
     params = dict(params)
     reg, theta0, rho, unc, fast = _spong_design(ctx, params, which)
+    model = params.pop("_model", None)
     K, Lam = default_gains(ctx) if not ("K" in params and "Lambda" in params) else (None, None)
     p = dict(theta0=theta0, rho=rho, epsilon=(EPSILON_SP1, EPSILON_SP2)[which], K=K, Lambda=Lam)
     p.update(params)
@@ -603,7 +630,11 @@ def _make_spong(ctx, params, which):
     except (ValueError, TypeError) as exc:
         raise RobustDrakeError(f"{('sp1', 'sp2')[which]}: {exc}") from None
     c.uncertainty = unc
-    return FusedInputController(c) if c.scalar_fast_path else c
+    if model is not None:  # its friction and effects fed forward, stateful ones as blocks
+        from robust_drake.model_repair.model import attach_compensation
+
+        attach_compensation(c, model)
+    return FusedInputController(c)
 
 
 def make_pd(ctx, K=None, Lambda=None):
@@ -621,7 +652,8 @@ def make_pd(ctx, K=None, Lambda=None):
 def make_sp1(ctx, **params):
     """Registry factory ``sp1``: JS eqs. 9-12, 18 for any URDF arm (see :func:`_spong_design`).
     Params: ``rel_bound``, ``abs_bound`` (uncertainty box), ``theta0``, ``rho``, ``epsilon``,
-    ``K``, ``Lambda``, ``regressor``."""
+    ``K``, ``Lambda``, ``regressor``; ``model`` (an identified model or a report / model path:
+    theta0, rho from its ``alpha`` (0.01) confidence set, its compensation) and ``alpha``."""
     return _make_spong(ctx, params, 0)
 
 

@@ -1,0 +1,1 @@
+"""Experiment design for identification: optimised periodic excitations (:mod:`.design`)."""
