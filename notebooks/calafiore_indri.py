@@ -25,6 +25,7 @@
 #    ellipsoid's boundary.
 
 # %%
+# %matplotlib inline
 import os
 
 import matplotlib.pyplot as plt
@@ -73,18 +74,20 @@ for label, s in (("published", study), (f"own, n_m={N_SAMPLES[-1]}", study_own))
         print(f"{label:>14s} {law:8s} peak {np.round(m['peak'], 4)} rms {np.round(m['rms'], 4)} "
               f"settling {np.round(m['settling_time'], 3)} s")
 
+# %% [markdown]
+# CI figs. 5-6 on one y-scale, so the two laws compare at a glance:
+
 # %%
-logs = study["runs"][0]["_logs"]
-fig, axes = plt.subplots(1, 2, figsize=(10, 3.5), sharey=True)
-for ax, law in zip(axes, ("nominal", "robust")):
-    ax.plot(logs[law]["t"], logs[law]["e"])
-    ax.set(title=f"{law} control (CI fig. {5 if law == 'nominal' else 6})", xlabel="t [s]")
-    ax.legend(["joint 1", "joint 2"], loc="upper right")
-axes[0].set_ylabel("tracking error [rad]")
-plt.show()
+from IPython.display import display  # noqa: E402
+
+from robust_drake.experiments.calafiore import study_figures  # noqa: E402
+
+figs = study_figures(study)
+display(figs["fig5_nominal_errors.png"])
+display(figs["fig6_robust_errors.png"])
 
 # %% [markdown]
-# ## Fig. 3, the settling time and the full-rank certificate (issue 15)
+# ## Fig. 3, the settling time and the full-rank certificate
 # Fig. 3: measured torques against those reconstructed with a 5-sample central estimate. Settling time:
 # the last time |e(t) - e(T)| exceeds 10 % of its largest value (relative to the final error, since both
 # laws keep a small Coulomb offset); the paper reports that the robust law settles later. Full rank: the
@@ -98,14 +101,7 @@ from robust_drake.regressor import imi_scara_regressor  # noqa: E402
 from robust_drake.experiments.calafiore import simulate_identification  # noqa: E402
 
 rec = torque_reconstruction(n_samples=5)
-fig, axes = plt.subplots(2, 1, figsize=(9, 5), sharex=True)
-for j, ax in enumerate(axes):
-    ax.plot(rec["t"], rec["tau_meas"][:, j], ".", ms=2, label="measured")
-    ax.plot(rec["t"], rec["tau_rec"][:, j], "-", label="reconstructed")
-    ax.set_ylabel(f"tau{j + 1} [N m]")
-axes[0].legend()
-axes[0].set_title("CI fig. 3 analog (5 samples)")
-plt.show()
+display(figs["fig3_torque_reconstruction.png"])  # CI fig. 3 analog (5 samples)
 print("RMS reconstruction error vs noise-free torque [N m]:", np.round(rec["rms_vs_true"], 3))
 for law in ("nominal", "robust"):
     print(f"{law:8s} relative settling time {np.round(study['summary'][law]['settling_time_rel'], 3)} s")

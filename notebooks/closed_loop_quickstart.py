@@ -19,7 +19,9 @@
 # Coulomb + viscous friction on the plant and torque saturation at 31.2 N m.
 
 # %%
+# %matplotlib inline
 import os
+import tempfile
 
 import matplotlib.pyplot as plt
 import numpy as np
@@ -27,26 +29,35 @@ import numpy as np
 import robust_drake as rd
 
 SHORT = os.environ.get("ROBUST_DRAKE_SHORT") == "1"
+OUT = os.environ.get("ROBUST_DRAKE_NOTEBOOK_OUT") or tempfile.mkdtemp(prefix="quickstart_")
 duration = 0.3 if SHORT else None  # the CPT lasts 2 s
 
 # %% [markdown]
-# Build the diagram from a config; every piece is picked by name (see `robust_drake.registry`).
+# What can be picked by name: robots, controllers (with their parameters and units),
+# trajectories. Names are accepted in any case and by the papers' names ("SP1", "LG+").
 
 # %%
-config = rd.ClosedLoopConfig(robot="d2r2", load="max", controller="sp1", trajectory="cpt", rate=2500.0)
-loop = rd.build_closed_loop(config)
-# Opt-in: watch the arm in Meshcat (pydrake's viewer on localhost); set ROBUST_DRAKE_MESHCAT=1.
-vis = None
-if os.environ.get("ROBUST_DRAKE_MESHCAT") == "1":
-    meshcat, vis = rd.add_meshcat(loop)
-    print("open", meshcat.web_url())
-result = loop.simulate(duration)
-if vis is not None:
-    from robust_drake.viz import publish_recording
+print([r["name"] for r in rd.list_robots()])
+for c in rd.list_controllers()[:4]:
+    print(f"{c['name']:12s} {c['paper_name']:10s} {c['summary']}: {[p['name'] for p in c['parameters']]}")
 
-    publish_recording(vis)  # replay the run from the Meshcat page
+# %% [markdown]
+# Build the diagram from a config; every piece is picked by name.
+
+# %%
+config = rd.ClosedLoopConfig(robot="d2r2", load="max", controller="SP1", trajectory="cpt", rate=2500.0)
+loop = rd.build_closed_loop(config)
+# Meshcat (pydrake's 3-D viewer) records the run; the replay is saved as one HTML file below.
+meshcat, vis = rd.add_meshcat(loop)
+result = loop.simulate(duration)
+result  # one line: the run and its criteria (result.to_pandas() has every logged signal, with units)
+
+# %%
+replay = rd.save_replay(meshcat, vis, os.path.join(OUT, "closed_loop_replay.html"), loop=loop, result=result)
+print("3-D replay (open in any browser):", replay)
 print({k: f"{v:.4g}" for k, v in result.metrics.items()})
-print(f"{result.sim_seconds:.2f} s simulated in {result.wall_seconds:.2f} s")
+df = result.to_pandas()
+print(df.shape, {c: df.attrs["units"][c] for c in ("q1", "v_hat1", "tau1", "e_task")})
 
 # %% [markdown]
 # The diagram itself: rendered to SVG where Graphviz's `dot` is installed, else its source.
@@ -57,20 +68,17 @@ import shutil  # noqa: E402
 if shutil.which("dot"):
     from IPython.display import SVG, display
 
-    display(SVG(filename=str(rd.render_diagram(loop, "/tmp/closed_loop.svg"))))
+    display(SVG(filename=str(rd.render_diagram(loop, os.path.join(OUT, "closed_loop.svg")))))
 else:
-    from robust_drake.viz import diagram_source
-
-    print("(Graphviz not installed; the dot source:)\n", diagram_source(loop)[:400], "...")
+    print("(Graphviz not installed; the dot source:)\n", rd.render_diagram(loop, os.path.join(OUT, "loop.dot")).read_text()[:400], "...")
 
 # %% [markdown]
-# Tracking errors and torques, as in the paper's figures 4-11.
+# Any logged signal is a column of `to_pandas()`: here the observer's velocity estimate against
+# the true velocity of joint 2 (the encoder's quantisation shows in the estimate).
 
 # %%
-fig, ax = plt.subplots(3, 1, figsize=(8, 6), sharex=True)
-ax[0].plot(result.t, result.q[:, 0] - result.q_d[:, 0]); ax[0].set_ylabel("e1 [rad]")
-ax[1].plot(result.t, result.q[:, 1] - result.q_d[:, 1]); ax[1].set_ylabel("e2 [rad]")
-ax[2].plot(result.t, result.tau); ax[2].set_ylabel("tau [N m]"); ax[2].set_xlabel("t [s]")
+ax = df[["v2", "v_hat2"]].plot(figsize=(8, 3), lw=0.8)
+ax.set(xlabel="t [s]", ylabel="[rad/s]")
 plt.show()
 
 # %% [markdown]
@@ -82,6 +90,15 @@ rd.tracking_figure(result)
 
 # %%
 rd.task_path_figure(result)
+
+# %% [markdown]
+# Without a 3-D viewer: a stick-figure animation of the planar arm (matplotlib, a JavaScript
+# player in the notebook; `rd.save_animation(result, "arm.gif")` writes a GIF).
+
+# %%
+from IPython.display import HTML  # noqa: E402
+
+HTML(rd.animate_planar(result, fps=10).to_jshtml())
 
 # %% [markdown]
 # Compare with the PD baseline with the same K, Lambda.

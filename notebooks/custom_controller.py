@@ -24,12 +24,13 @@
 # dynamics) on the Siciliano vertical 2-link arm, against the PD baseline with the same gains.
 
 # %%
+# %matplotlib inline
 import os
 
 import matplotlib.pyplot as plt
 import numpy as np
 
-from robust_drake.diagram import ClosedLoopConfig, simulate
+import robust_drake as rd
 
 SHORT = os.environ.get("ROBUST_DRAKE_SHORT") == "1"
 duration = 0.6 if SHORT else 2.0  # the sine reference lasts as long as we run it
@@ -39,16 +40,13 @@ duration = 0.6 if SHORT else 2.0  # the sine reference lasts as long as we run i
 
 # %%
 from pydrake.multibody.tree import MultibodyForces
-from robust_drake.models import make_plant
-from robust_drake.systems.controllers.base import DiscreteController
-from robust_drake.systems.controllers.spong import default_gains
 
 
-class ComputedTorque(DiscreteController):
+class ComputedTorque(rd.DiscreteController):
     def __init__(self, ctx):
         super().__init__(ctx.n, ctx.period, name="ComputedTorque")
-        self.K, self.Lam = map(np.asarray, default_gains(ctx))      # same gains as the "pd" baseline
-        self.plant = make_plant(ctx.robot, ctx.load)
+        self.K, self.Lam = map(np.asarray, rd.default_gains(ctx))   # same gains as the "pd" baseline
+        self.plant = rd.make_plant(ctx.robot, ctx.load)
         self.pctx, self.f0 = self.plant.CreateDefaultContext(), MultibodyForces(self.plant)
 
     def compute(self, t, q_d, qd_d, qdd_d, q, v, v_error):
@@ -63,8 +61,8 @@ class ComputedTorque(DiscreteController):
 
 # %%
 common = dict(robot="siciliano_2link", trajectory="sine", rate=1000.0, observer="exact", duration=duration)
-ct = simulate(ClosedLoopConfig(controller=ComputedTorque, **common))
-pd = simulate(ClosedLoopConfig(controller="pd", **common))
+ct = rd.simulate(controller=ComputedTorque, **common)
+pd = rd.simulate(controller="pd", **common)
 for name, r in (("computed torque", ct), ("PD", pd)):
     late = r.t >= 0.5
     print(f"{name:16s} max |q - q_d| after 0.5 s: {np.abs(r.q[late] - r.q_d[late]).max():.3e} rad"
@@ -84,7 +82,6 @@ plt.show()
 
 # %%
 from pydrake.systems.framework import LeafSystem
-from robust_drake.errors import RobustDrakeError
 
 
 class NoVelocityError(LeafSystem):  # forgot the v_error input
@@ -96,6 +93,6 @@ class NoVelocityError(LeafSystem):  # forgot the v_error input
 
 
 try:
-    simulate(ClosedLoopConfig(controller=NoVelocityError, **common))
-except RobustDrakeError as exc:
+    rd.simulate(controller=NoVelocityError, **common)
+except rd.RobustDrakeError as exc:
     print("error:", exc)

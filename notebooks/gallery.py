@@ -14,20 +14,19 @@
 # # Gallery: one figure of each command
 #
 # Every command that draws takes `--plot DIR` and writes its named PNG files into DIR. This
-# notebook runs each command's short form through `robust_drake.cli.main` (the same code as the
-# `robust-drake` program) and shows the files. With `ROBUST_DRAKE_SHORT=1` (the tests) every run
+# notebook runs each command's short form with the `robust-drake` program (as a terminal would)
+# and shows the files. With `ROBUST_DRAKE_SHORT=1` (the tests) every run
 # is cut to a fraction of a second; unset it for the paper's horizons.
 
 # %%
-import contextlib
-import io
+# %matplotlib inline
 import os
 import pathlib
+import subprocess
+import sys
 import tempfile
 
 from IPython.display import Image, Markdown, display
-
-from robust_drake.cli import main
 
 SHORT = os.environ.get("ROBUST_DRAKE_SHORT") == "1"
 OUT = pathlib.Path(os.environ.get("ROBUST_DRAKE_NOTEBOOK_OUT") or tempfile.mkdtemp(prefix="gallery_"))
@@ -37,10 +36,12 @@ DUR = ["--duration", "0.3"] if SHORT else []
 def show_plot_files(command, argv, files):
     """Run one command quietly with --plot DIR and display the named PNG files it wrote."""
     folder = OUT / command
-    with contextlib.redirect_stdout(io.StringIO()):
-        status = main(["-q", command, *argv, "--plot", str(folder)])
+    # `robust-drake ARGS` (the same program through this kernel's Python)
+    run = subprocess.run([sys.executable, "-m", "robust_drake.cli", "-q", command, *argv, "--plot", str(folder)],
+                         capture_output=True, text=True)
+    status = run.returncode
     if status == 2:
-        raise RuntimeError(f"robust-drake {command} refused its arguments (see the error above)")
+        raise RuntimeError(f"robust-drake {command} refused its arguments: {run.stderr.strip()}")
     display(Markdown(f"### `robust-drake {command} {' '.join(argv)} --plot DIR` (exit {status})"))
     for f in files:
         display(Image(filename=str(folder / f), width=720))

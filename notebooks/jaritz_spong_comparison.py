@@ -25,6 +25,7 @@
 # run the notebook without it (or `robust-drake compare --table all`) for the full horizons.
 
 # %%
+# %matplotlib inline
 import os
 import pathlib
 
@@ -76,13 +77,10 @@ print("SP1/SP2 ratio on table 4:", round(et(4, "sp1") / et(4, "sp2"), 3))
 # paper's figures 4-7) and circle (table 7, figures 8-11).
 
 # %%
+from IPython.display import display  # noqa: E402
+
 for table in (5, 7):
-    path = js.plot_table(table, rows[table], OUT)
-    img = plt.imread(path)
-    plt.figure(figsize=(11, 9))
-    plt.imshow(img)
-    plt.axis("off")
-    plt.show()
+    display(js.table_figure(table, rows[table]))  # a matplotlib Figure (fig.savefig to keep it)
 
 # %% [markdown]
 # ## The other joint-space trajectories (section 4)
@@ -124,14 +122,10 @@ sweep = js.sweep_rate(("sp1", "sp2", "zc"), rates, workers=WORKERS, progress=not
 for r in sweep:
     print(f"{js.LABELS[r['controller']]:4s} {r['rate']:6g} Hz  |error_task| = {r['error_task']:.5f} m  "
           f"chattering = {r['chattering']:.0f} N m/s  diverged = {r['diverged']}")
-path = js.plot_sweep(sweep, OUT / "sweep_rate.png")
-plt.figure(figsize=(10, 4))
-plt.imshow(plt.imread(path))
-plt.axis("off")
-plt.show()
+display(js.sweep_figure(sweep))
 
 # %% [markdown]
-# ## Friction (section 7), eq. 65 and the epsilon search (issue 15)
+# ## Friction (section 7), eq. 65 and the epsilon search
 # Fig. 3 (friction curve), Coulomb vs Coulomb + viscous compensation vs friction inside each robust law,
 # the eq. 65 velocity-error filter, and the smallest epsilon without torque vibration (power above 50 Hz
 # below 1 %) against table 1. Rigid arm; BUILD_NOTES has the flexible numbers.
@@ -139,10 +133,7 @@ plt.show()
 # %%
 from robust_drake.experiments.epsilon_search import epsilon_search  # noqa: E402
 
-path = js.plot_friction_curve(OUT / "fig3_friction.png")
-from IPython.display import Image, display  # noqa: E402
-
-display(Image(filename=str(path)))  # JS fig. 3: friction torque against velocity
+display(js.friction_figure())  # JS fig. 3: friction torque against velocity
 fr_rows = js.friction_study(("sp1", "zc"), duration=CPT_DURATION, workers=WORKERS)
 for r in fr_rows:
     print(f"{js.LABELS.get(r['base'], r['base']):4s} {r['variant']:16s} |error_task| = {r['error_task']:.5f} m  "
@@ -156,7 +147,7 @@ for r in eps["results"]:
     print(f"{r['controller']:6s} epsilon found {r['epsilon']}  (table 1: {r['published']})")
 
 # %% [markdown]
-# ## Rigid against flexible D2R2 (issue 15)
+# ## Rigid against flexible D2R2
 # The flexible arm (two-mass drives with motor-side encoders, link-2 bending; BUILD_NOTES
 # "Flexible D2R2") reproduces the resonance the paper reports with the Euler estimator, which the
 # rigid arm does not: SP1 with compensation on the CPT, Euler against averaging, on both models.

@@ -28,6 +28,7 @@
 # The same loop is `robust-drake logs-to-control --robot puma560_3link`.
 
 # %%
+# %matplotlib inline
 import os
 
 import matplotlib.pyplot as plt
@@ -37,7 +38,7 @@ from robust_drake.experiments.logs_to_control import (LogsToControlConfig, track
                                                       identified_set)
 from robust_drake.experiments.plant_draws import draw_plants
 from robust_drake.experiments.ultimate_bound import bound_region, mass_bounds, per_joint_bound
-from robust_drake.models import make_plant
+import robust_drake as rd
 
 SHORT = os.environ.get("ROBUST_DRAKE_SHORT") == "1"
 cfg = LogsToControlConfig(robot="puma560_3link", draws=3 if SHORT else 8,
@@ -63,7 +64,7 @@ print(f"truth at Mahalanobis radius {truth_r:.2f} (inside: <= 1)")
 # %%
 params, K, Lam, layer, q_ref = design_eq15(cfg, reg, theta0, P)
 print(f"boundary layer {layer['epsilon']:.3g} (previous rule {layer['previous_rule_epsilon']:.3g})")
-plant = make_plant(cfg.robot)
+plant = rd.make_plant(cfg.robot)
 region, info = bound_region(plant, q_ref, np.random.default_rng(1))
 draws, rejected = draw_plants(reg, theta0, P, cfg.draws, np.random.default_rng(cfg.seed))
 rows = []
@@ -91,7 +92,7 @@ ax0.axhline(max(r[3].max() for r in rows), color="k", ls="--", lw=1, label="larg
 ax0.axvline(cfg.transient, color="grey", ls=":", lw=1)
 ax0.set_xlabel("t [s]")
 ax0.set_ylabel("max_j |q~_j| [rad]")
-ax0.legend(fontsize=8)
+ax0.legend(fontsize=9)
 ax0.set_title("CI eq. 15 on plants drawn across the set\n(blue: aimed at the boundary, green: inside)", fontsize=9)
 n = len(K)
 for j in range(n):
@@ -99,9 +100,9 @@ for j in range(n):
     ax1.bar(x, [r[2][j] for r in rows], 0.8, color=f"C{j}", label=f"joint {j}: max |e|")
     ax1.scatter(x, [r[3][j] for r in rows], color="k", marker="_", s=120, zorder=3)
 ax1.set_yscale("log")
-ax1.set_xticks(np.arange(len(rows)) * (n + 1) + 1, [f"{r[0].kind[0]} {r[0].radius:.2f}" for r in rows], fontsize=7)
+ax1.set_xticks(np.arange(len(rows)) * (n + 1) + 1, [f"{r[0].kind[0]} {r[0].radius:.2f}" for r in rows], fontsize=8.5)
 ax1.set_xlabel("draw (b = boundary, i = inside; Mahalanobis radius); black: that joint's bound")
 ax1.set_ylabel("[rad]")
-ax1.legend(fontsize=7)
+ax1.legend(fontsize=8.5)
 fig.tight_layout()
 plt.show()

@@ -27,19 +27,23 @@
 # experiment (an arm with a hidden Stribeck effect).
 
 # %%
+# %matplotlib inline
 import glob
 import os
 import tempfile
 import warnings
 
-import matplotlib.pyplot as plt
+import matplotlib.pyplot as plt  # noqa: F401 - the inline backend shows the returned Figures
 import numpy as np
+from IPython.display import display
 
+import robust_drake as rd
+# the steps inside rd.repair, for this walk-through
 from robust_drake.model_repair import residual as R
 from robust_drake.identification.data import DataWarning, load
 from robust_drake.identification.least_squares import load_regressor
-from robust_drake.model_repair.pipeline import RepairOptions, run_repair, run_repair_demo
 from robust_drake.model_repair.selection import ColumnCache, fit_model, predict_tau
+from robust_drake.model_repair.simulated import hidden_effect_case
 
 warnings.simplefilter("ignore", DataWarning)
 SHORT = os.environ.get("ROBUST_DRAKE_SHORT") == "1"
@@ -62,8 +66,6 @@ if HAVE_DATA:
     val_files = sorted(glob.glob(os.path.join(C1, "20230629-154*.csv")))
     torque = "tau_meas"
 else:
-    from robust_drake.model_repair.simulated import hidden_effect_case
-
     f, v, truth = hidden_effect_case("stribeck", out_dir=OUT)
     robot, fit_files, val_files, torque = truth["robot"], [f], [v], "tau_meas"
 
@@ -84,12 +86,7 @@ print("baseline RMS fit", np.round(base.rms, 4), "validate", np.round(np.sqrt(np
 # acceleration, torque; the spectrum; the mean residual around every velocity reversal.
 
 # %%
-path = R.plot_residuals(fit, base.residual, os.path.join(OUT, "baseline_residual.png"), "baseline residual (fit data)")
-img = plt.imread(path)
-plt.figure(figsize=(14, 4))
-plt.imshow(img)
-plt.axis("off")
-plt.show()
+display(R.residual_figure(fit, base.residual, "baseline residual (fit data)"))
 ana = R.analyse(fit, base.residual)
 print("unexplained structure:", ana["unexplained_structure"], ana["where"][:3])
 
@@ -101,23 +98,19 @@ print("unexplained structure:", ana["unexplained_structure"], ana["where"][:3])
 # same columns low-passed at half the cut-off as instruments) move much less.
 
 # %%
-from robust_drake.identification.instruments import cutoff_sweep, plot_cutoff_sweep  # noqa: E402
+from robust_drake.identification.instruments import cutoff_sweep, cutoff_sweep_figure  # noqa: E402
 
 cutoffs = [4.0, 8.0] if SHORT else [3.0, 4.0, 6.0, 8.0, 10.0, 12.0]
 sweep = cutoff_sweep(fit_files, robot, reg, cutoffs, torque=torque)
-img = plt.imread(plot_cutoff_sweep(sweep, os.path.join(OUT, "cutoff_sweep.png")))
-plt.figure(figsize=(14, 4))
-plt.imshow(img)
-plt.axis("off")
-plt.show()
+display(cutoff_sweep_figure(sweep))
 
 # %% [markdown]
 # ## 4-6. Selection, estimator and before/after
-# The whole loop in one call (the same function the command line uses).
+# The whole loop in one call, `rd.repair` (what `robust-drake repair` runs).
 
 # %%
-opts = RepairOptions(robot=robot, torque=torque, cutoff_hz=8.0, replay=not SHORT, plots=True)
-rep = run_repair(fit_files, opts, validate_paths=val_files, out_dir=OUT, progress=print)
+rep = rd.repair(fit_files, robot=robot, validate=val_files, out=os.path.join(OUT, "report"), torque=torque,
+                cutoff_hz=8.0, replay=not SHORT, overwrite=True, progress=print)
 for s in rep["selection"]["steps"]:
     print(f"step {s['step']}: {s['label']:<45s} {s['reason']}")
 print("validation RMS before", np.round(rep["baseline"]["rms_validate"], 4),
@@ -130,18 +123,14 @@ if rep["replay"]["after"]:
           "after", np.round(rep["replay"]["after"]["rms_q"], 4))
 
 # %%
-fig, ax = plt.subplots(1, 2, figsize=(10, 3))
-for j in range(2):
-    ax[j].bar(["baseline", "repaired"], [rep["baseline"]["rms_validate"][j], rep["final"]["rms_validate"][j]])
-    ax[j].set_title(f"validation RMS torque error, joint {j} [N m]")
-fig.tight_layout()
-plt.show()
+rd.repair_figure(rep)  # RMS torque residual per joint, baseline vs repaired, fit and validation data
 
 # %% [markdown]
-# The report (`report.md`, `report.json`, plots) is in `OUT`. On a simulated experiment the hidden
-# effect is found with its parameter (`run_repair_demo`):
+# The report (`report.md`, `report.json`, plots) is in `OUT/report`. On a simulated experiment the
+# hidden effect is found with its parameter:
 
 # %%
 if not SHORT:
-    demo = run_repair_demo(os.path.join(OUT, "demo"))
-    print(demo["truth"], [(e["kind"], e["joint"], e["parameters"]) for e in demo["effects"]])
+    f, v, truth = hidden_effect_case("stribeck", out_dir=os.path.join(OUT, "demo"))
+    demo = rd.repair(f, robot=truth["robot"], validate=v, out=os.path.join(OUT, "demo", "report"), overwrite=True)
+    print(truth, [(e["kind"], e["joint"], e["parameters"]) for e in demo["effects"]])

@@ -297,7 +297,6 @@ def repair(fit: Any, robot: str, *, validate: Any = None,
     from robust_drake.identification.data import DEFAULT_CUTOFF_HZ
     from robust_drake.model_repair.pipeline import RepairOptions
     from robust_drake.model_repair.selection import MIN_GAIN
-    from robust_drake.log import progress_callback
 
     opts = RepairOptions(robot=robot, torque=torque,
                          cutoff_hz=DEFAULT_CUTOFF_HZ if cutoff_hz is None else cutoff_hz,
@@ -309,8 +308,8 @@ def repair(fit: Any, robot: str, *, validate: Any = None,
         if not sigma_rel > 0:
             raise RobustDrakeError(f"sigma_rel must be > 0, got {sigma_rel}")
         opts.sigma_rel = sigma_rel
-    return _repair_logs(fit, validate, opts, None if out is None else str(out), progress_callback(progress),
-                        overwrite)
+    return _repair_logs(fit, validate, opts, None if out is None else str(out), progress,
+                        overwrite)  # None: logger + stage bar
 
 
 def _repair_logs(fit, validate, opts, out, progress, overwrite) -> "RepairResult":
@@ -485,6 +484,83 @@ def run_montecarlo(robot: str = "d2r2", controllers: Sequence[str] = ("sp1", "sp
     return mc.run_montecarlo(scenarios, out=out, workers=workers, progress=progress)
 
 
+def list_robots() -> "list[dict]":
+    """The shipped robots (``robust-drake list robots``).
+
+    Returns
+    -------
+    list of dict
+        One per robot: ``name``, ``joints``, ``loads``, ``sample_rate`` [Hz] (None: the 2500 Hz
+        default), ``torque_limits`` [N m], ``gravity``, ``plane`` and a one-line ``summary``.
+    """
+    from robust_drake.registry import list_robots as _list
+
+    return _list()
+
+
+def list_controllers() -> "list[dict]":
+    """The controllers ``ClosedLoopConfig(controller=...)`` accepts (``robust-drake list controllers``).
+
+    Names are accepted in any case and by their paper names (``"SP1"``, ``"LG+"``).
+
+    Returns
+    -------
+    list of dict
+        One per controller: ``name``, ``paper_name``, ``summary``, ``paper`` (equations) and
+        ``parameters`` (``[{"name", "unit", "description"}]``, the keys of ``controller_params``).
+    """
+    from robust_drake.registry import catalog
+
+    return catalog()["controllers"]
+
+
+def list_trajectories() -> "list[dict]":
+    """The references ``ClosedLoopConfig(trajectory=...)`` accepts (``robust-drake list trajectories``).
+
+    Returns
+    -------
+    list of dict
+        One per trajectory: ``name``, ``paper_name``, ``summary`` and ``parameters``
+        (``[{"name", "unit", "description"}]``, the keys of ``trajectory_params``).
+    """
+    from robust_drake.registry import catalog
+
+    return catalog()["trajectories"]
+
+
+def list_observers() -> "list[dict]":
+    """The velocity estimators ``ClosedLoopConfig(observer=...)`` accepts (``robust-drake list observers``).
+
+    Returns
+    -------
+    list of dict
+        One per observer: ``name``, ``summary`` and ``parameters`` (the keys of ``observer_params``).
+    """
+    from robust_drake.registry import catalog
+
+    return catalog()["observers"]
+
+
+def default_gains(ctx: Any) -> "tuple":
+    """The K [N m s/rad] and Lambda [1/s] gains the PD, SP1 and SP2 of a loop use by default.
+
+    JS section 8's diag(30, 10) and diag(50, 20) on the D2R2; on any other arm Lambda = 20 I and
+    K = 20 [1/s] diag(M(0)), so each joint's sliding variable r = e_dot + Lambda e decays at about
+    20 1/s under K alone. For a custom controller's factory: ``K, Lam = rd.default_gains(ctx)``.
+
+    Parameters
+    ----------
+    ctx : BuildContext
+        What a factory is called with (``ctx.robot``, ``ctx.load``, ``ctx.n``, ``ctx.period``).
+
+    Returns
+    -------
+    tuple
+        ``(K, Lambda)``, one entry per joint each.
+    """
+    from robust_drake.systems.controllers.spong import default_gains as _gains
+
+    return _gains(ctx)
 def excite(robot: str | None = None, *, config: "Any" = None, progress: Callable | None = None,
            **options: Any) -> "Any":
     """Design an identification experiment: a periodic, band-limited Fourier motion that

@@ -39,7 +39,7 @@ from collections import OrderedDict
 from typing import Any, Iterable, Sequence
 
 from robust_drake.divergence import TRACKING_ERROR_LIMIT
-from robust_drake.errors import RobustDrakeError
+from robust_drake.errors import RobustDrakeError, option_name
 from robust_drake.parallel import iter_parallel
 from robust_drake.scenario import Scenario, dedupe, spec_fingerprint, validate_scenarios
 
@@ -277,8 +277,8 @@ class ResultStore:
             if not force:
                 raise RobustDrakeError(
                     f"{self.path} holds results of a different batch (fingerprint {existing}, "
-                    f"this batch {fingerprint}); choose another --out or pass --force to "
-                    "overwrite it")
+                    f"this batch {fingerprint}); choose another {option_name('--out', 'out= file')} or pass "
+                    f"{option_name('--force', 'force=True')} to overwrite it")
         if force:  # start over, whatever the file held
             self._remove_all()
         self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -413,13 +413,14 @@ def _done_rows(store, retry_failed: bool) -> dict[str, dict]:
 
 
 def _run_todo(todo: list[Scenario], options: dict, new_rows: dict[str, dict], store, *, workers,
-              scheduler, progress: bool, flush_seconds: float, on_row) -> None:
+              scheduler, progress: "bool | str", flush_seconds: float, on_row) -> None:
     """Run ``todo`` in parallel; each row goes into ``new_rows`` (filled in place, so the caller
     sees the rows done before an interrupt), the store and ``on_row`` as it arrives."""
     by_id = {s.id: s for s in todo}
     items = [(s.to_dict(), options) for s in todo]
     for outcome in iter_parallel(_task, items, keys=[s.id for s in todo], workers=workers,
-                                 scheduler=scheduler, desc="batch", progress=progress):
+                                 scheduler=scheduler, desc=progress if isinstance(progress, str) else "batch",
+                                 progress=bool(progress)):
         if outcome.ok:
             row = outcome.value
         else:  # the worker died or the task could not run at all
@@ -440,7 +441,7 @@ def run_batch(
     scheduler: Any = None,
     force: bool = False,
     retry_failed: bool = False,
-    progress: bool = True,
+    progress: "bool | str" = True,
     reuse: bool = True,
     divergence_error: float = DEFAULT_DIVERGENCE_ERROR,
     spec: Any = None,
@@ -462,6 +463,8 @@ def run_batch(
     divergence_error : joint error [rad] beyond which a run counts as diverged.
     spec : the spec document to record in the file's metadata (the CLI passes the YAML).
     on_row : optional callback ``f(row_dict)`` called in this process for each new row.
+    progress : True: a bar on a terminal or in a notebook, else a log line every ~10 % (a string
+        labels it, e.g. ``"montecarlo"``); False: none.
 
     Returns
     -------

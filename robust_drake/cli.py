@@ -39,9 +39,79 @@ COMMAND_MODULES = [
     "robust_drake.commands.calafiore",
     "robust_drake.commands.epsilon_search",
     "robust_drake.commands.logs_to_control",
+    "robust_drake.commands.list",
     "robust_drake.commands.control",
     "robust_drake.commands.excite",
 ]
+
+
+#: The Examples section of each subcommand's ``--help`` (runtimes measured on a busy 2-core
+#: machine with the command shown; BUILD_NOTES / handoff "ux" has the measurements).
+EXAMPLES: dict[str, list[str]] = {
+    "simulate": [
+        "robust-drake simulate --robot d2r2 --load max --controller SP1 --trajectory cpt --json",
+        "robust-drake simulate --controller sp2 --trajectory circle --plot out/circle_sp2",
+        "robust-drake simulate --trajectory cpt --trajectory-param amplitude_deg=45 --duration 1",
+        "robust-drake simulate --meshcat out/replay.html        # a 3-D replay to open in any browser",
+        "robust-drake simulate --meshcat --meshcat-wait 60      # live viewer on localhost for 60 s",
+        "robust-drake simulate --trajectory circle --animation out/arm.gif   # planar stick figure",
+        "robust-drake simulate --diagram out/loop.svg           # block diagram (Graphviz)",
+        "robust-drake simulate --robot panda --controller sp1 --trajectory sine --rate 1000",
+        "robust-drake simulate --design out/sp1.yaml          # rerun a loop designed by control",
+    ],
+    "demo": ["robust-drake demo --out out                 # about {demo} on 2 cores",
+             "robust-drake demo --out out --skip-repair   # only the CPT tables (JS tables 2-3)"],
+    "bascetta": ["robust-drake bascetta --gains 25,5 --json",
+                 "robust-drake bascetta --gains 100,10 --plot out/br"],
+    "batch": ["robust-drake batch examples/batch_small.yaml --out out/batch_small.parquet   # rerun resumes",
+              "robust-drake batch examples/batch_small.yaml --out out/b.parquet --scheduler tcp://host:8786"],
+    "montecarlo": ["robust-drake montecarlo --robot d2r2 --controllers SP1,SP2,ZC,LG+ --draws 200   # 800 runs, "
+                   "about {montecarlo}",
+                   "robust-drake montecarlo --controllers sp1,sp2 --draws 20 --plot out/mc   # about a minute",
+                   "robust-drake montecarlo --robot imi_scara --ellipsoid ellipsoid.json --controllers calafiore"],
+    "compare": ["robust-drake compare --table 4 5 --plot out/js",
+                "robust-drake compare --table 2 3 --controllers sp1,sp2 --json"],
+    "sweep-rate": ["robust-drake sweep-rate --controllers sp1,sp2,zc --rates 250,500,1000,2500,5000 --plot out/rate"],
+    "repair": ["robust-drake repair fit*.csv --robot dfki_double_pendulum_c1 --validate val*.csv --out out/repair_c1"
+               "   # about {repair}",
+               "robust-drake repair fit.csv --robot my_arm.urdf --out out/r --force --json > report.json",
+               "robust-drake repair fit.csv --robot d2r2 --effects position_dependent,stribeck --out out/r"],
+    "ellipsoid": ["robust-drake ellipsoid --samples 5 --json",
+                  "robust-drake ellipsoid --samples 20 --save out/ellipsoid.json"],
+    "calafiore": ["robust-drake calafiore --plot out/ci", "robust-drake calafiore --n-true 5 --json"],
+    "epsilon-search": ["robust-drake epsilon-search --controllers sp1,sp2 --plot out/eps"],
+    "logs-to-control": ["robust-drake logs-to-control --robot puma560_3link --plot out/ltc   # about {logs_to_control}",
+                        "robust-drake logs-to-control --robot siciliano_2link --draws 20 --json"],
+    "control": ["robust-drake control out/repair_c1/report.json --controller ci --plot out/ctl",
+                "robust-drake control out/repair_c1/report.json --controller sp1 --design out/sp1.yaml --force"],
+    "excite": ["robust-drake excite panda --duration 10 --out out/panda_excitation.csv --plot out/exc",
+               "robust-drake excite dfki_double_pendulum_c1 --for-effects position_dependent --json"],
+    "list": ["robust-drake list                       # everything, as tables",
+             "robust-drake list controllers           # with their parameters and units",
+             "robust-drake list --json | jq '.robots[].name'"],
+}
+
+#: measured wall times quoted in the examples (and README), filled into EXAMPLES
+RUNTIMES = {"demo": "1 min", "montecarlo": "11 min on 2 cores", "repair": "17 s", "logs_to_control": "35 s"}
+
+
+class HelpFormatter(argparse.HelpFormatter):
+    """argparse's formatter, except that an ``examples:`` epilog keeps its lines as written."""
+
+    def _fill_text(self, text, width, indent):
+        if text.startswith("examples:"):
+            return "".join(indent + line for line in text.splitlines(keepends=True))
+        return super()._fill_text(text, width, indent)
+
+
+def _add_examples(name: str, parser: argparse.ArgumentParser) -> None:
+    lines = EXAMPLES.get(name)
+    if not lines:
+        return
+    parser.formatter_class = HelpFormatter
+    body = "\n".join("  " + line.format(**RUNTIMES) for line in lines)
+    parser.epilog = "examples:\n" + body + ("\n\n" + parser.epilog if parser.epilog and
+                                              not parser.epilog.startswith("examples:") else "")
 
 
 def add_output_flags(parser: argparse.ArgumentParser, plot: str | None = None, files: str | None = None) -> None:
@@ -176,8 +246,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub.required = True
     for name in COMMAND_MODULES:
         importlib.import_module(name).register(sub)
-    for p in sub.choices.values():  # -v / -q also after the subcommand (SUPPRESS keeps a global one)
+    for name, p in sub.choices.items():  # -v / -q also after the subcommand (SUPPRESS keeps a global one)
         _verbosity_flags(p, default=argparse.SUPPRESS)
+        _add_examples(name, p)
     return parser
 
 
@@ -235,6 +306,9 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(glue_negative_values(parser, sys.argv[1:] if argv is None else list(argv)))
     configure_logging(args.verbosity)
+    from robust_drake.errors import set_caller
+
+    token = set_caller("cli")  # messages name --force, --out (not overwrite=True, out=)
     try:
         status = args.func(args)
     except RobustDrakeError as exc:
@@ -243,6 +317,10 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
+    finally:
+        from robust_drake.errors import _CALLER
+
+        _CALLER.reset(token)
     return int(status or 0)
 
 

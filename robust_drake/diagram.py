@@ -82,7 +82,14 @@ def check_run_size(duration: float, rate: float) -> None:
             f"{MAX_INTEGRATOR_STEPS:.3g} (robust_drake.diagram.MAX_INTEGRATOR_STEPS); "
             "shorten the duration")
 
-_DEFAULT = object()
+class _RobotDefault:
+    """The marker of a field filled from the robot's description (:meth:`ClosedLoopConfig.resolved`)."""
+
+    def __repr__(self) -> str:
+        return "<from the robot's description>"
+
+
+_DEFAULT = _RobotDefault()
 
 
 @dataclass
@@ -205,6 +212,12 @@ class ClosedLoopConfig:
 
     def __post_init__(self):
         self.validate()
+        from robust_drake.registry import canonical_or_same, canonical_robot
+
+        self.robot = canonical_robot(self.robot)
+
+        for kind in ("controller", "observer", "trajectory"):  # "SP1", "LG+" -> "sp1", "lgplus"
+            setattr(self, kind, canonical_or_same(kind, getattr(self, kind)))
 
     def validate(self) -> None:
         """Check types and ranges of every field; raise RobustDrakeError naming the first
@@ -432,7 +445,43 @@ def _make_block(kind: str, name: str, ctx, params: dict):
 
 @dataclass
 class SimulationResult:
-    """Logs of one closed-loop run, sampled at the controller rate, and its metrics."""
+    """Logs of one closed-loop run, sampled at the controller rate, and its metrics.
+
+    ``repr(result)`` is one line (robot, controller, duration, metrics); :meth:`to_pandas` gives
+    every logged signal as a DataFrame (units in ``df.attrs["units"]``), :meth:`plot` the
+    tracking figure.
+
+    Parameters
+    ----------
+    t : numpy.ndarray
+        Sample times [s] (K,).
+    q, v : numpy.ndarray
+        True joint angles [rad] and velocities [rad/s] (K, n).
+    q_d, qd_d, qdd_d : numpy.ndarray
+        Reference position [rad], velocity [rad/s], acceleration [rad/s^2] (K, n).
+    q_meas : numpy.ndarray
+        Encoder output (quantised angle) [rad] (K, n).
+    v_hat : numpy.ndarray or None
+        The observer's velocity estimate held at the last tick [rad/s] (K, n).
+    u : numpy.ndarray
+        Controller output (held) [N m] (K, n).
+    tau : numpy.ndarray
+        Torque applied to the plant after compensation and saturation [N m] (K, n).
+    metrics : dict
+        The error criteria of JS eqs. 55, 56, 58, 59 (rad, m).
+    torque_stats : dict
+        RMS and peak torques [N m].
+    sim_seconds, wall_seconds : float
+        Simulated and wall-clock time [s].
+    diverged : bool
+        True when the run stopped as diverged (``divergence_reason`` says why).
+    config : dict
+        The resolved :class:`ClosedLoopConfig` as a dict.
+    link_lengths : tuple or None
+        Link lengths [m] of a planar 2-link arm (task-space metrics), else None.
+    divergence_reason : str or None
+        Why the run diverged, else None.
+    """
 
     t: np.ndarray
     q: np.ndarray  # true joint angles [rad] (K, n)
@@ -471,26 +520,64 @@ class SimulationResult:
 
         return tracking_figure(self, title)
 
+    def __repr__(self) -> str:
+        c = self.config or {}
+        m = self.metrics or {}
+        keys = [k for k in ("error_task", "maxerr_task") if k in m and m[k] == m[k]]
+        keys = keys or [k for k in m if k.startswith("maxerr")][:2]
+        metrics = ", ".join(f"{k}={m[k]:.3g}" for k in keys)
+        flag = f", DIVERGED: {self.divergence_reason}" if self.diverged else ""
+        return (f"SimulationResult({c.get('controller', '?')} on {c.get('robot', '?')}, {c.get('trajectory', '?')}, "
+                f"{self.sim_seconds:.3g} s at {c.get('rate', float('nan')):g} Hz, {len(self.t)} samples x "
+                f"{self.q.shape[1] if np.ndim(self.q) == 2 else '?'} joints; {metrics}{flag})")
+
+    #: the logged signals of :meth:`to_pandas`: attribute -> (column prefix, unit)
+    PANDAS_COLUMNS = {"q": ("q", "rad"), "v": ("v", "rad/s"), "q_d": ("q_d", "rad"), "qd_d": ("qd_d", "rad/s"),
+                      "qdd_d": ("qdd_d", "rad/s^2"), "q_meas": ("q_meas", "rad"), "v_hat": ("v_hat", "rad/s"),
+                      "u": ("u", "N m"), "tau": ("tau", "N m")}
+
     def to_pandas(self) -> "pd.DataFrame":
         """The logs as a DataFrame indexed by ``t`` [s].
 
-        Columns ``q1..qn`` [rad], ``v1..vn`` [rad/s], ``q_d1..q_dn`` [rad], ``u1..un`` and
-        ``tau1..taun`` [N m] (joint numbers from 1, as in the papers).
+        Columns ``q1..qn`` [rad], ``v1..vn`` [rad/s], ``q_d1..``, ``qd_d1..``, ``qdd_d1..`` (the
+        reference) [rad, rad/s, rad/s^2], ``q_meas1..`` (encoder) [rad], ``v_hat1..`` (observer,
+        when it logs one) [rad/s], ``u1..`` and ``tau1..`` [N m], the tracking error ``e1..`` =
+        q - q_d [rad] and, for a planar 2-link arm, ``e_task`` [m] (the end effector's distance
+        from its desired point, JS eq. 58's integrand). Joint numbers from 1, as in the papers.
+        ``df.attrs["units"]`` maps every column to its unit; ``df.attrs["config"]`` is the run's
+        configuration.
 
         Returns
         -------
         pandas.DataFrame
-            One row per controller tick, ``5 n`` columns.
+            One row per controller tick.
         """
         import pandas as pd
 
-        n = self.q.shape[1]
-        cols = {}
-        for name in ("q", "v", "q_d", "u", "tau"):
-            a = np.asarray(getattr(self, name), float).reshape(len(self.t), n)
+        K, n = len(self.t), self.q.shape[1]
+        cols, units = {}, {}
+        for attr, (prefix, unit) in self.PANDAS_COLUMNS.items():
+            value = getattr(self, attr)
+            if value is None:
+                continue
+            a = np.asarray(value, float).reshape(K, n)
             for j in range(n):
-                cols[f"{name}{j + 1}"] = a[:, j]
-        return pd.DataFrame(cols, index=pd.Index(np.asarray(self.t, float), name="t"))
+                cols[f"{prefix}{j + 1}"] = a[:, j]
+                units[f"{prefix}{j + 1}"] = unit
+        e = np.asarray(self.q, float) - np.asarray(self.q_d, float)
+        for j in range(n):
+            cols[f"e{j + 1}"] = e[:, j]
+            units[f"e{j + 1}"] = "rad"
+        if self.link_lengths:
+            from robust_drake.kinematics import planar_forward_kinematics
+
+            cols["e_task"] = np.linalg.norm(planar_forward_kinematics(self.q, self.link_lengths)
+                                            - planar_forward_kinematics(self.q_d, self.link_lengths), axis=1)
+            units["e_task"] = "m"
+        df = pd.DataFrame(cols, index=pd.Index(np.asarray(self.t, float), name="t"))
+        df.attrs["units"] = {"t": "s", **units}
+        df.attrs["config"] = dict(self.config or {})
+        return df
 
     def to_dict(self, logs: bool = False) -> dict:
         out = dict(self.metrics)
@@ -501,6 +588,35 @@ class SimulationResult:
             for k in ("t", "q", "v", "q_d", "qd_d", "q_meas", "u", "tau"):
                 out[k] = getattr(self, k).tolist()
         return out
+
+
+def _debug_run(c, duration: float, step: float, wall: float) -> None:
+    """One DEBUG line (``-v``) per run: what ran, how many ticks, the integrator step, the wall time."""
+    from robust_drake.log import logger
+
+    logger.debug("simulated %s on %s: %.4g s (%d ticks at %g Hz, RK2 step %.3g ms) in %.3g s wall",
+                 block_label(c.controller), c.robot, duration, round(duration * c.rate), c.rate, 1e3 * step, wall)
+
+
+def _warn_if_unsampled(block, spec, rate) -> None:
+    """Warn when a controller declares no periodic event: its output is then recomputed at every
+    integrator step (a continuous controller), not sampled at ``rate`` Hz as the loop says."""
+    from pydrake.systems.framework import Diagram
+
+    if isinstance(block, Diagram):
+        return
+    try:
+        sampled = (block.GetUniquePeriodicDiscreteUpdateAttribute() is not None
+                   or block.num_discrete_state_groups() > 0 or block.num_abstract_states() > 0)
+    except Exception:  # noqa: BLE001 - only a hint
+        return
+    if not sampled:
+        import warnings
+
+        warnings.warn(f"controller {block_label(spec)} declares no periodic update, so it runs continuously (at "
+                      f"every integrator step), not sampled at {float(rate):g} Hz with a held output; derive it "
+                      "from rd.DiscreteController or declare DeclarePeriodicDiscreteUpdateEvent(1/rate, ...) "
+                      "and a state output port", stacklevel=4)
 
 
 def _arm_for(robot: str, n: int) -> ArmSpec:
@@ -595,10 +711,18 @@ class ClosedLoop:
         c, builder = self.config, self.builder
         try:
             self.reference = make_reference(self.arm, c.trajectory, **dict(c.trajectory_params))
+        except RobustDrakeError as exc:
+            if str(exc).startswith("unknown trajectory"):
+                raise  # the name itself: the message has the nearest names
+            raise RobustDrakeError(f"trajectory {c.trajectory!r} with parameters "
+                                   f"{dict(c.trajectory_params)!r}: {exc}") from None
         except (TypeError, ValueError) as exc:
             msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-            raise RobustDrakeError(
-                f"trajectory {c.trajectory!r} with parameters {dict(c.trajectory_params)!r}: {msg}") from None
+            from robust_drake.registry import param_error
+
+            raise RobustDrakeError(param_error("trajectory", c.trajectory, c.trajectory_params, msg) or
+                                   f"trajectory {c.trajectory!r} with parameters {dict(c.trajectory_params)!r}: "
+                                   f"{msg}") from None
         check_run_size(c.duration or self.reference.duration, c.rate)
         if self.reference.n != self.n:
             raise RobustDrakeError(f"trajectory {c.trajectory!r} has {self.reference.n} joints, robot has {self.n}")
@@ -638,6 +762,7 @@ class ClosedLoop:
                                              {**c.controller_params, **self.model_params}))
         ctrl.set_name("controller")
         self.controller = ctrl
+        _warn_if_unsampled(ctrl, c.controller, c.rate)
         builder.Connect(x_d, ctrl.GetInputPort("x_d"))
         builder.Connect(q_meas, ctrl.GetInputPort("q"))
         builder.Connect(obs.GetOutputPort("v"), ctrl.GetInputPort("v"))
@@ -824,6 +949,7 @@ class ClosedLoop:
             text = str(exc).strip().splitlines()
             integrator_error = text[0] if text else type(exc).__name__
         wall = time.perf_counter() - wall0
+        _debug_run(c, duration, self.period / steps, wall)
 
         t, logs = self._log_columns(context)
         X = logs["state"]

@@ -17,3 +17,35 @@ class SolverError(RobustDrakeError):
 
 class DataError(RobustDrakeError):
     """Measured data that cannot be used as given (missing columns, NaNs, units...)."""
+
+
+# --- messages in the caller's words: "--force" on the command line, "overwrite=True" in Python ---
+import contextvars as _contextvars
+
+_CALLER = _contextvars.ContextVar("robust_drake_caller", default="python")
+
+
+def set_caller(kind: str):
+    """Mark the current context as called from ``"cli"`` or ``"python"`` (the command line sets
+    ``"cli"``); returns the token for :meth:`contextvars.ContextVar.reset`."""
+    return _CALLER.set(kind)
+
+
+def option_name(cli: str, python: str) -> str:
+    """The name of an option as the caller spells it: ``cli`` (``"--force"``) when the command
+    line runs, else ``python`` (``"overwrite=True"``)."""
+    return cli if _CALLER.get() == "cli" else python
+
+
+def did_you_mean(word: str, choices, n: int = 3) -> str:
+    """``" (did you mean 'sp1'?)"`` for the closest ``choices`` to ``word`` (difflib), or ``""``."""
+    import difflib
+
+    choices = [str(c) for c in choices]
+    close = difflib.get_close_matches(str(word), choices, n=n, cutoff=0.6) or difflib.get_close_matches(
+        str(word).lower(), [c.lower() for c in choices], n=n, cutoff=0.6)
+    close = [next(c for c in choices if c.lower() == m.lower()) for m in close]
+    close += [c for c in choices if len(str(word)) >= 2 and c.lower().startswith(str(word).lower()) and c not in close]
+    if not close:
+        return ""
+    return " (did you mean " + " or ".join(repr(c) for c in close) + "?)"

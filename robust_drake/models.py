@@ -173,8 +173,10 @@ def get_arm(name: str) -> ArmSpec:
     try:
         return ROBOTS[name]
     except (KeyError, TypeError):
+        from robust_drake.errors import did_you_mean
+
         raise RobustDrakeError(
-            f"unknown robot {name!r}; known robots: {', '.join(sorted(ROBOTS))}"
+            f"unknown robot {name!r}{did_you_mean(str(name), ROBOTS)}; known robots: {', '.join(sorted(ROBOTS))}"
         ) from None
 
 
@@ -208,8 +210,11 @@ def resolve_urdf(robot: str | os.PathLike, load: str = "none") -> pathlib.Path:
                 f"load {load!r} given for a URDF path; load variants exist only for named robots"
             )
         return path.resolve()
+    from robust_drake.errors import did_you_mean
+
     raise RobustDrakeError(
-        f"unknown robot {text!r}: give one of {', '.join(sorted(ROBOTS))} or a path to a .urdf/.sdf file"
+        f"unknown robot {text!r}{did_you_mean(text, ROBOTS)}: give one of {', '.join(sorted(ROBOTS))} "
+        "or a path to a .urdf/.sdf file"
     )
 
 

@@ -301,8 +301,12 @@ def montecarlo_scenarios(robot: str, controllers: Sequence[str], thetas,
 
 
 def run_montecarlo(scenarios: Iterable[Scenario], **batch_kwargs):
-    """:func:`robust_drake.batch.run_batch` on the draws (same options)."""
+    """:func:`robust_drake.batch.run_batch` on the draws (same options; progress labelled
+    "montecarlo")."""
     from robust_drake.batch import run_batch
+
+    if batch_kwargs.get("progress", True) is True:
+        batch_kwargs["progress"] = "montecarlo"
 
     return run_batch(list(scenarios), **batch_kwargs)
 
@@ -335,30 +339,55 @@ def percentile_table(df, metric: str = "maxerr_task", percentiles=(50, 90, 95, 9
 def boxplot(df, path, metric: str = "maxerr_task", title: str | None = None,
             also: Sequence[str] = ("error_task",)) -> None:
     """Box plots per controller (ok runs) of ``metric`` and of the ``also`` metrics, one panel
-    each, worst case marked with a red triangle; saved to ``path``."""
-    from robust_drake.plotting import subplots
+    each, worst case marked with a red triangle, controllers by their paper names (LG+, SP1); on a
+    log axis when the controllers' medians differ by more than a factor 5 (ZC's spread would
+    flatten the others on a linear one: medians a factor 5 apart or interquartile ranges a factor 10
+    apart); the diverged and failed runs are counted under each box.
+    Saved to ``path``."""
+    from robust_drake.plotting import style, subplots
+    from robust_drake.registry import paper_name
 
     metrics = [metric] + [m for m in also if m != metric and m in df.columns]
     ctrls = list(dict.fromkeys(df["controller"]))
-    fig, axes = subplots(1, len(metrics), squeeze=False,
-                             figsize=(0.5 + (1.4 + 1.0 * max(1, len(ctrls))) * len(metrics), 4.0))
-    for ax, m in zip(axes[0], metrics):
-        groups = [df[(df["controller"] == c) & (df["status"] == "ok")][m].astype(float).dropna()
-                  .to_numpy() for c in ctrls]
-        ax.boxplot([v if len(v) else np.array([np.nan]) for v in groups], whis=(5, 95))
-        ax.set_xticks(range(1, len(ctrls) + 1), ctrls)
-        marked = False
-        for i, v in enumerate(groups, start=1):
-            if len(v):
-                ax.plot([i], [v.max()], "rv", ms=6, label=None if marked else "worst draw")
-                marked = True
-        unit = "m" if m.endswith("task") else "rad"
-        ax.set_ylabel(f"{m} [{unit}]")
-        ax.grid(True, axis="y", alpha=0.3)
-        ax.set_title(f"{m} (box 25-75 %, whiskers 5-95 %)", fontsize=8)
-    if axes[0][-1].get_legend_handles_labels()[0]:
-        axes[0][-1].legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
-    fig.suptitle(title or "Monte Carlo per controller (whiskers 5-95 %, red = worst draw)")
-    fig.tight_layout()
+    with style():
+        fig, axes = subplots(2, len(metrics), squeeze=False, sharex="col", height_ratios=(3, 2),
+                             figsize=(0.8 + (1.6 + 1.0 * max(1, len(ctrls))) * len(metrics), 6.6))
+        for ax, rel, m in zip(axes[0], axes[1], metrics):
+            groups = [df[(df["controller"] == c) & (df["status"] == "ok")][m].astype(float).dropna()
+                      .to_numpy() for c in ctrls]
+            ax.boxplot([v if len(v) else np.array([np.nan]) for v in groups], whis=(5, 95))
+            labels = []
+            for c, v in zip(ctrls, groups):
+                bad = int(((df["controller"] == c) & (df["status"] != "ok")).sum())
+                labels.append(paper_name(c) + (f"\n({bad} not ok)" if bad else ""))
+            ax.set_xticks(range(1, len(ctrls) + 1), labels)
+            marked = False
+            for i, v in enumerate(groups, start=1):
+                if len(v):
+                    ax.plot([i], [v.max()], "rv", ms=7, label=None if marked else "worst draw")
+                    marked = True
+            # one controller's spread (ZC's) or level flattening the others' boxes: a log axis
+            ok = [v for v in groups if len(v)]
+            iqr = [float(np.subtract(*np.percentile(v, [75, 25]))) for v in ok]
+            med = [float(np.median(v)) for v in ok]
+            positive = all(np.min(v) > 0 for v in ok)
+            if positive and len(ok) > 1 and (max(med) > 5 * min(med)
+                                             or max(iqr) > 10 * max(min(iqr), 1e-300)):
+                ax.set_yscale("log")
+            unit = "m" if m.endswith("task") else "rad"
+            ax.set_ylabel(f"{m} [{unit}]" + (" (log scale)" if ax.get_yscale() == "log" else ""))
+            ax.grid(True, axis="y", which="both", alpha=0.3)
+            ax.set_title(f"{m} (box 25-75 %, whiskers 5-95 %)", fontsize=9.5)
+            # each controller's spread on one scale: the draws relative to its own median
+            rel.boxplot([100.0 * (v / np.median(v) - 1.0) if len(v) and np.median(v) != 0 else np.array([np.nan])
+                         for v in groups], whis=(5, 95))
+            rel.axhline(0.0, color="0.5", lw=0.8)
+            rel.set_xticks(range(1, len(ctrls) + 1), labels)
+            rel.set_ylabel("vs own median [%]")
+            rel.grid(True, axis="y", alpha=0.3)
+        if axes[0][-1].get_legend_handles_labels()[0]:
+            axes[0][-1].legend(loc="upper left", bbox_to_anchor=(1.01, 1.0))
+        fig.suptitle(title or "Monte Carlo per controller (whiskers 5-95 %, red = worst draw)")
+        fig.tight_layout()
     pathlib.Path(path).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=120)

@@ -235,11 +235,11 @@ def _failed(key, exc: BaseException, wall: float = 0.0) -> RunOutcome:
 
 
 def _make_bar(total: int, desc: str, progress: bool):
-    from tqdm.auto import tqdm
+    """A tqdm bar on a terminal or in a notebook, an INFO log line every ~10 % (elapsed and
+    remaining time) otherwise (:func:`robust_drake.log.progress_bar`); nothing when not ``progress``."""
+    from robust_drake.log import progress_bar
 
-    disable = (not progress) or not (hasattr(sys.stderr, "isatty") and sys.stderr.isatty())
-    return tqdm(total=total, desc=desc, unit="run", file=sys.stderr, disable=disable,
-                dynamic_ncols=True, smoothing=0.1)
+    return progress_bar(total, desc, unit="runs", enabled=bool(progress))
 
 
 def _check_picklable(func, items) -> None:
@@ -302,7 +302,8 @@ def run_parallel(
     keys : one label per item for the outcomes (default: the item's index).
     workers : local worker processes; default ``os.cpu_count()``; ``1`` runs in this process.
     desc : progress bar label.
-    progress : show a tqdm bar on stderr (only when stderr is a terminal).
+    progress : show progress: a tqdm bar on a terminal or in a notebook, else a log line
+        (``robust_drake`` logger, INFO) every ~10 % with the elapsed and remaining time.
     scheduler : ``None`` (local), a Dask scheduler address ``"tcp://host:port"`` or a
         ``distributed.Client``; then ``workers`` is ignored (the cluster decides).
     stream : if True return an iterator yielding outcomes as they complete; otherwise a list

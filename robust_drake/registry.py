@@ -19,7 +19,7 @@ import importlib
 from dataclasses import dataclass
 from typing import Any, Callable
 
-from robust_drake.errors import RobustDrakeError
+from robust_drake.errors import RobustDrakeError, did_you_mean  # noqa: F401 - re-exported
 
 CONTROLLERS: dict[str, str] = {
     "pd": "robust_drake.systems.controllers.spong:make_pd",
@@ -90,17 +90,249 @@ def names(kind: str) -> list[str]:
     return sorted(_TABLES[kind])
 
 
-def resolve(kind: str, name: str) -> Callable:
-    """Return the factory registered as ``name`` in table ``kind``.
+# --- what a person types and reads: paper names, aliases, parameters with units ------------------
 
-    Raises :class:`RobustDrakeError` naming the known entries when ``name`` is unknown.
-    """
+#: The names the papers' tables print (figures and tables use them; :func:`canonical` accepts them).
+PAPER_NAMES: dict[str, str] = {
+    "pd": "PD", "sp1": "SP1", "sp2": "SP2", "zc": "ZC", "lg": "LG", "lgplus": "LG+",
+    "bascetta_a": "BR Case A", "bascetta_b": "BR Case B",
+    "sp1_robust_friction": "SP1 + robust friction", "sp2_robust_friction": "SP2 + robust friction",
+    "zc_robust_friction": "ZC + robust friction", "lg_robust_friction": "LG + robust friction",
+    "lgplus_robust_friction": "LG+ + robust friction",
+    "calafiore": "CI robust", "calafiore_nominal": "CI nominal",
+    "cpt": "CPT", "circle": "circle", "refmodel": "reference model", "sine": "sine", "step": "step",
+    "line": "line",
+}
+
+#: Other spellings accepted for a registry name (compared case-insensitively).
+ALIASES: dict[str, dict[str, str]] = {
+    "controller": {"lg+": "lgplus", "lg_plus": "lgplus", "br_a": "bascetta_a", "br_b": "bascetta_b",
+                   "case_a": "bascetta_a", "case_b": "bascetta_b", "ci": "calafiore",
+                   "ci_nominal": "calafiore_nominal"},
+    "observer": {}, "trajectory": {}, "plant_effect": {},
+}
+
+_GAINS = {"K": ("N m s/rad", "gain on r = e_dot + Lambda e, per joint (JS eq. 11)"),
+          "Lambda": ("1/s", "sliding-surface slope per joint (JS eq. 11)")}
+_BOX = {"rel_bound": ("-", "relative half-width of the parameter box around theta0 (any URDF arm)"),
+        "abs_bound": ("parameter units", "absolute half-width of that box")}
+_FRICTION = {"k_hat": ("N m", "nominal Coulomb level per joint (JS eq. 90)"),
+             "rho_k": ("N m", "bound on its error (JS section 11)")}
+
+#: kind -> name -> {"summary", "paper", "params": {name: (unit, description)}}. For trajectories,
+#: observers and plant effects the accepted names are the factory's signature (checked by the
+#: tests); for controllers the documented ones (factories take ``**params``).
+CATALOG: dict[str, dict[str, dict]] = {
+    "controller": {
+        "pd": {"summary": "PD on the sliding variable, the gains of SP1/SP2", "paper": "JS section 8",
+               "params": dict(_GAINS)},
+        "sp1": {"summary": "Spong's robust law, one bound rho on ||theta - theta0||", "paper": "JS eqs. 9-12, 18",
+                "params": {**_GAINS, "theta0": ("parameter units", "nominal parameters (JS eq. 16)"),
+                           "rho": ("parameter units", "bound on ||theta - theta0|| (JS eq. 17)"),
+                           "epsilon": ("-", "boundary-layer width of the robust term, in the units of ||Y^T r|| (JS eq. 18)"),
+                           **_BOX, "regressor": ("callable", "Y(q, qd, v, a) of your own, with theta0/rho")}},
+        "sp2": {"summary": "Spong's robust law, one bound per parameter", "paper": "JS eqs. 9-12 (SP2)",
+                "params": {**_GAINS, "theta0": ("parameter units", "nominal parameters (JS eq. 16)"),
+                           "rho": ("parameter units", "per-parameter bounds (JS table 10)"),
+                           "epsilon": ("-", "boundary-layer width, in the units of ||Y^T r|| (JS table 1)"),
+                           **_BOX, "regressor": ("callable", "Y(q, qd, v, a) of your own, with theta0/rho")}},
+        "zc": {"summary": "Zenieh & Corless robust law", "paper": "JS eqs. 21-28",
+               "params": {**_GAINS, "beta1": ("-", "bound coefficient (JS eq. 23)"),
+                          "beta2": ("-", "bound coefficient (JS eq. 23)"),
+                          "epsilon": ("-", "boundary layer (JS table 1: 25, circle 45)"), **_BOX}},
+        "lg": {"summary": "Liu & Goldenberg, nominal = the unloaded arm", "paper": "JS eqs. 29-35",
+               "params": {**_GAINS, "theta_nom": ("kg m^2", "nominal theta of JS eq. 14"),
+                          "width": ("kg m^2", "interval width per parameter"),
+                          "eps_M": ("-", "inertia-term boundary layer"), "eps_C": ("-", "Coriolis-term boundary layer")}},
+        "lgplus": {"summary": "LG+, Liu & Goldenberg with the nominal at the interval centre",
+                   "paper": "JS section 5",
+                   "params": {**_GAINS, "theta_nom": ("kg m^2", "nominal theta of JS eq. 14"),
+                              "width": ("kg m^2", "interval half-width per parameter"),
+                              "eps_M": ("-", "inertia-term boundary layer"),
+                              "eps_C": ("-", "Coriolis-term boundary layer")}},
+        "bascetta_a": {"summary": "robust inverse dynamics, classical Lyapunov design", "paper": "BR eqs. 12-13",
+                       "params": {"K_P": ("1/s^2", "proportional gain"), "K_D": ("1/s", "derivative gain"),
+                                  "perturbation": ("-", "relative mass error of the controller model"),
+                                  "boundary": ("rad", "boundary layer of the robust term"),
+                                  "region": ("-", "'trajectory' or 'global': where the bounds are sampled"),
+                                  "tube": ("rad", "half-width of the tube around the reference"),
+                                  "Q": ("-", "Lyapunov weight"), "mass_model": ("-", "diag_q0 | model"),
+                                  "delta": ("-", "bound override"), "gamma": ("-", "bound override"),
+                                  "beta": ("-", "rho polynomial override"), "n_time": ("-", "time samples of the bounds")}},
+        "bascetta_b": {"summary": "robust inverse dynamics, Riccati design", "paper": "BR eqs. 17-20",
+                       "params": {}},  # filled below: the same as Case A
+        "calafiore": {"summary": "Calafiore & Indri robust law from a confidence ellipsoid",
+                      "paper": "CI eqs. 6-8, 15",
+                      "params": {**_GAINS, "theta0": ("parameter units", "ellipsoid centre (CI section 5.1)"),
+                                 "P": ("parameter units^2", "ellipsoid shape matrix"),
+                                 "E": ("parameter units", "E with E E^T = P (instead of P)"),
+                                 "epsilon": ("-", "boundary layer of eq. 15"),
+                                 "regressor": ("callable", "your own control regressor")}},
+        "calafiore_nominal": {"summary": "Calafiore & Indri nominal law only", "paper": "CI eq. 6",
+                              "params": {**_GAINS, "theta0": ("parameter units", "model parameters"),
+                                         "regressor": ("callable", "your own control regressor")}},
+    },
+}
+CATALOG["controller"]["bascetta_b"]["params"] = dict(CATALOG["controller"]["bascetta_a"]["params"])
+for _base in ("sp1", "sp2", "zc", "lg", "lgplus"):
+    _extra = dict(_FRICTION, **({} if _base.startswith("sp") else {"eps_F": ("N m", "friction boundary layer")}))
+    CATALOG["controller"][f"{_base}_robust_friction"] = {
+        "summary": f"{PAPER_NAMES[_base]} with the robust friction term", "paper": "JS section 11",
+        "params": {**CATALOG["controller"][_base]["params"], **_extra}}
+
+#: units of trajectory / observer / effect factory parameters (by parameter name)
+PARAM_UNITS: dict[str, tuple[str, str]] = {
+    "amplitude_deg": ("deg", "peak joint motion"), "segment": ("s", "duration of each cubic"),
+    "offset": ("rad", "start posture per joint (default: inside the joint limits)"),
+    "center": ("m", "circle centre (x, y)"), "radius": ("m", "circle radius"),
+    "omega": ("rad/s", "angular frequency"), "duration": ("s", "length of the reference"),
+    "elbow": ("-", "'up' or 'down' inverse-kinematics branch"), "amplitude": ("rad", "amplitude per joint"),
+    "zeta": ("-", "damping ratio"), "t0": ("s", "step time"), "start": ("m", "start point (x, y)"),
+    "end": ("m", "end point (x, y)"), "T": ("s", "motion time"), "Ta": ("s", "acceleration time"),
+    "hold": ("s", "rest at the end"), "n_avg": ("-", "samples averaged (JS eq. 66)"),
+    "window": ("-", "samples in the window"), "nu": ("-", "filter pole"), "normalize": ("-", "unit DC gain"),
+    "python": ("-", "use the Python block instead of the C++ one"), "c": ("-", "Kalman noise ratio"),
+    "theta_m": ("rad", "encoder quantum"), "L1": ("1/s", "observer gain"), "L2": ("1/s^2", "observer gain"),
+    "theta": ("parameter units", "model parameters of the observer"),
+    "coulomb": ("N m", "Coulomb level per joint"), "viscous": ("N m s/rad", "viscous coefficient per joint"),
+    "phi1": ("N m", "sigmoid friction level"), "phi2": ("s/rad", "sigmoid slope"), "phi3": ("N m s/rad", "viscous part"),
+}
+
+
+def canonical(kind: str, name: str) -> str:
+    """The registry name ``name`` stands for: itself, its lower-case form (``"SP1"`` -> ``"sp1"``),
+    an alias (``"LG+"`` -> ``"lgplus"``) or its paper name. Raises :class:`RobustDrakeError`
+    with the nearest known names ("did you mean ...") when none matches."""
     table = _TABLES.get(kind)
     if table is None:
         raise RobustDrakeError(f"unknown registry table {kind!r}; known: {sorted(_TABLES)}")
-    target = table.get(name)
-    if target is None:
-        raise RobustDrakeError(f"unknown {kind} {name!r}; known: {', '.join(sorted(table))}")
+    if name in table:
+        return name
+    key = str(name).strip().lower().replace("-", "_").replace(" ", "_")
+    if key in table:
+        return key
+    aliases = {**ALIASES.get(kind, {}),
+               **{v.lower().replace(" ", "_"): k for k, v in PAPER_NAMES.items() if k in table}}
+    if key in aliases:
+        return aliases[key]
+    raise RobustDrakeError(f"unknown {kind} {name!r}{did_you_mean(key, list(table) + list(ALIASES.get(kind, {})))}; "
+                           f"known: {', '.join(sorted(table))}")
+
+
+def canonical_or_same(kind: str, spec):
+    """:func:`canonical` for a known name, anything else (an unknown name, an instance, a factory)
+    unchanged, so that the builder's own error reports it in context."""
+    if not isinstance(spec, str):
+        return spec
+    try:
+        return canonical(kind, spec)
+    except RobustDrakeError:
+        return spec
+
+
+def canonical_robot(robot):
+    """A shipped robot's name in any case (``"D2R2"`` -> ``"d2r2"``); anything else unchanged."""
+    if not isinstance(robot, str):
+        return robot
+    from robust_drake.models import ROBOTS
+
+    if robot in ROBOTS:
+        return robot
+    key = robot.strip().lower()
+    return key if key in ROBOTS else robot
+
+
+def paper_name(name) -> str:
+    """The paper's name for a registry name (``"lgplus"`` -> ``"LG+"``); other labels unchanged."""
+    return PAPER_NAMES.get(str(name), str(name))
+
+
+def accepted_params(kind: str, name: str) -> dict[str, tuple[str, str]]:
+    """``{parameter: (unit, description)}`` a registry entry accepts: the catalog's (controllers)
+    or its factory's keyword arguments (trajectories, observers, plant effects)."""
+    import inspect
+
+    name = canonical(kind, name)
+    entry = CATALOG.get(kind, {}).get(name)
+    if entry is not None:
+        return dict(entry["params"])
+    sig = inspect.signature(resolve(kind, name))
+    out = {}
+    for i, (p, par) in enumerate(sig.parameters.items()):
+        if i == 0 or par.kind in (par.VAR_KEYWORD, par.VAR_POSITIONAL):
+            continue  # arm / ctx
+        out[p] = PARAM_UNITS.get(p, ("-", ""))
+    return out
+
+
+def param_error(kind: str, name: str, params: dict, message: str) -> str | None:
+    """A one-line message for a wrong parameter *name* (``message`` is the TypeError's text, e.g.
+    "make_cpt() got an unexpected keyword argument 'amp'"): the bad name, the nearest accepted
+    ones and the whole accepted list with units; None when ``message`` is about something else."""
+    import re
+
+    m = re.search(r"unexpected keyword argument '([^']+)'", message)
+    if m is None:
+        return None
+    bad = m.group(1)
+    try:
+        ok = accepted_params(kind, name)
+    except RobustDrakeError:
+        return None
+    listed = ", ".join(f"{p} [{u}]" for p, (u, _) in ok.items()) or "none"
+    return (f"{kind} {name!r} has no parameter {bad!r}{did_you_mean(bad, list(ok))}; "
+            f"accepted: {listed} (robust-drake list {_LIST_WORD[kind]})")
+
+
+_LIST_WORD = {"controller": "controllers", "observer": "observers", "trajectory": "trajectories",
+              "plant_effect": "plant-effects"}
+
+
+def catalog() -> dict:
+    """Everything the registry offers, for ``robust-drake list`` and :func:`robust_drake.list_controllers`
+    and friends: ``{"robots": [...], "controllers": [...], "observers": [...], "trajectories": [...],
+    "plant_effects": [...]}``, each entry a dict with ``name``, ``paper_name``, ``summary`` and
+    ``parameters`` (``[{"name", "unit", "description"}]``)."""
+    out = {"robots": list_robots()}
+    for kind in ("controller", "observer", "trajectory", "plant_effect"):
+        rows = []
+        for name in names(kind):
+            entry = CATALOG.get(kind, {}).get(name, {})
+            doc = ""
+            if not entry:
+                target = _TABLES[kind][name]
+                func = getattr(importlib.import_module(target.partition(":")[0]), target.partition(":")[2])
+                doc = ((func.__doc__ or "").strip().splitlines() or [""])[0]
+            rows.append({"name": name, "paper_name": paper_name(name), "summary": entry.get("summary", doc),
+                         "paper": entry.get("paper"),
+                         "parameters": [{"name": p, "unit": u, "description": d}
+                                        for p, (u, d) in accepted_params(kind, name).items()]})
+        out[_LIST_WORD[kind].replace("-", "_")] = rows
+    return out
+
+
+def list_robots() -> list[dict]:
+    """The shipped robots: ``name``, ``joints``, ``loads``, ``sample_rate`` [Hz], ``torque_limits``
+    [N m], ``gravity``, ``plane`` and a one-line ``summary`` (from ``robots/<name>.yaml``)."""
+    from robust_drake.description import describe
+    from robust_drake.models import ROBOTS
+
+    rows = []
+    for name in sorted(ROBOTS):
+        d, arm = describe(name), ROBOTS[name]
+        rows.append({"name": name, "joints": arm.n, "loads": sorted(arm.loads), "sample_rate": d.sample_rate,
+                     "torque_limits": None if d.torque_limits is None else list(d.torque_limits),
+                     "gravity": arm.gravity, "plane": arm.plane, "summary": d.summary})
+    return rows
+
+
+def resolve(kind: str, name: str) -> Callable:
+    """Return the factory registered as ``name`` in table ``kind`` (``name`` as :func:`canonical`
+    accepts it: any case, aliases, paper names).
+
+    Raises :class:`RobustDrakeError` naming the nearest and the known entries when ``name`` is unknown.
+    """
+    target = _TABLES[kind][canonical(kind, name)]  # canonical() refuses an unknown kind or name
     module_name, _, func_name = target.partition(":")
     module = importlib.import_module(module_name)
     return getattr(module, func_name)
@@ -209,10 +441,13 @@ def make_block(kind: str, spec, ctx: BuildContext, params: dict):
                 f"{kind} must be a registry name, a pydrake System or a factory f(ctx) -> System (got {spec!r})")
         try:
             block = factory(ctx, **params)
-        except RobustDrakeError:
-            raise  # already a one-line user error naming the block
-        except (TypeError, ValueError) as exc:
+        except (RobustDrakeError, TypeError, ValueError) as exc:
             msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            better = param_error(kind, spec, params, msg) if isinstance(spec, str) else None
+            if better is not None:
+                raise RobustDrakeError(better) from None
+            if isinstance(exc, RobustDrakeError):
+                raise  # already a one-line user error naming the block
             raise RobustDrakeError(f"{kind} {block_label(spec)!r} with parameters {params!r}: {msg}") from None
         if not isinstance(block, System):
             raise RobustDrakeError(

@@ -509,8 +509,9 @@ def validate_scenarios(scenarios: Iterable[Scenario]) -> None:
             problems.append(f"{where}: unknown robot {s.robot!r} (known: {', '.join(sorted(ROBOTS))})")
         for kind, name in (("controller", s.controller), ("observer", s.observer),
                            ("trajectory", s.trajectory)):
-            if name not in registry.names(kind) and not (kind == "trajectory" and str(name).lower().endswith(".csv")):
-                problems.append(f"{where}: unknown {kind} {name!r} "
+            if (registry.canonical_or_same(kind, name) not in registry.names(kind)  # any case, paper names
+                    and not (kind == "trajectory" and str(name).lower().endswith(".csv"))):
+                problems.append(f"{where}: unknown {kind} {name!r}{registry.did_you_mean(str(name), registry.names(kind))} "
                                 f"(known: {', '.join(registry.names(kind))})")
         if not (isinstance(s.rate, (int, float)) and math.isfinite(s.rate) and s.rate > 0):
             problems.append(f"{where}: rate must be a positive number of Hz, got {s.rate!r}")

@@ -94,7 +94,7 @@ CASES = {
     "calafiore": (["calafiore", "--n-true", "1", "--duration", "0.2"],
                   ["fig4_reference.png", "fig5_nominal_errors.png", "fig6_robust_errors.png", "torques.png"]),
     "demo": (["demo", "--skip-repair", "--duration", "0.2", "--workers", "1", "--out", "{tmp}/demo"],
-             ["cpt_sp1_none.png", "cpt_sp2_none.png", "cpt_sp1_max.png", "cpt_sp2_max.png"]),
+             ["cpt_none.png", "cpt_max.png"]),
     "bascetta": (["bascetta", "--duration", "0.2"],
                  ["fig1_joint_trajectory.png", "fig2_cartesian_trajectory.png", "fig3_w_base.png",
                   "fig4_w_elbow.png"]),

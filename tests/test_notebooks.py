@@ -16,7 +16,7 @@ from nbclient import NotebookClient
 REPO = pathlib.Path(__file__).resolve().parents[1]
 NOTEBOOKS = sorted((REPO / "notebooks").glob("*.py"))
 # A notebook "plots" when its code draws with matplotlib (pyplot or the package's plot helpers).
-PLOTS = re.compile(r"plt\.(subplots|figure|imshow|plot)\(|\.plot\(|plot_[a-z_]+\(|_figure\(")
+PLOTS = re.compile(r"plt\.(subplots|figure|imshow|plot)\(|\.plot\(|plot_[a-z_]+\(|_figures?\(")
 
 
 def _images(cell) -> int:

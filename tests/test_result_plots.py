@@ -47,9 +47,18 @@ def test_simulation_result_plot_is_a_detached_labelled_figure(run):
 def test_simulation_result_to_pandas(run):
     df = run.to_pandas()
     n, K = run.q.shape[1], len(run.t)
-    assert df.shape == (K, 5 * n)
+    signals = ("q", "v", "q_d", "qd_d", "qdd_d", "q_meas", "v_hat", "u", "tau", "e")
+    assert df.shape == (K, len(signals) * n + 1)  # + e_task (planar arm)
     assert df.index.name == "t" and df.index[0] == pytest.approx(run.t[0])
-    assert list(df.columns) == [f"{s}{j}" for s in ("q", "v", "q_d", "u", "tau") for j in range(1, n + 1)]
+    assert list(df.columns) == [f"{s}{j}" for s in signals for j in range(1, n + 1)] + ["e_task"]
+    assert df.attrs["units"]["tau1"] == "N m" and df.attrs["units"]["e_task"] == "m"
+    assert set(df.attrs["units"]) == {"t", *df.columns}
+    # the task error is the end effector's distance from its desired point (JS eq. 58's integrand)
+    from robust_drake.kinematics import planar_forward_kinematics
+
+    tip = planar_forward_kinematics(run.q, run.link_lengths) - planar_forward_kinematics(run.q_d, run.link_lengths)
+    assert np.allclose(df["e_task"], np.hypot(tip[:, 0], tip[:, 1]))
+    assert len(repr(run)) < 300 and "SimulationResult(" in repr(run)
     # tracking error from the frame equals the logged error, and |tau| obeys the saturation
     assert np.allclose(df["q1"] - df["q_d1"], run.q[:, 0] - run.q_d[:, 0])
     assert df[["tau1", "tau2"]].abs().to_numpy().max() <= 31.2 + 1e-9
@@ -145,7 +154,7 @@ def test_compare_table_figure_shared_columns_sp1_sp2_one_row(tmp_path):
     assert path.name == "table7.png" and path.exists()
     axes = np.array(captured[0].get_axes()).reshape(-1, 3)
     assert axes.shape[0] == 2  # SP1 and SP2 in one row, ZC in the other
-    assert [ax.get_ylabel() for ax in axes[0]] == ["joint error [rad]", "task-space error [m]", "torque [N m]"]
+    assert [ax.get_ylabel() for ax in axes[0]] == ["joint error [rad]", "task-space error [mm]", "torque [N m]"]
     for col in range(3):
         assert axes[0, col].get_ylim() == axes[1, col].get_ylim()  # rows compare
     assert len(axes[0, 1].get_lines()) == 2 and len(axes[1, 1].get_lines()) == 1

@@ -177,6 +177,9 @@ def solve_program(prog, solver="clarabel"):
         opts.SetOption(CsdpSolver().solver_id(), "drake::RemoveFreeVariableMethod",
                        int(RemoveFreeVariableMethod.kTwoSlackVariables))
     result = s.Solve(prog, None, opts)
+    from robust_drake.log import debug_solve
+
+    debug_solve("norm-bound SDP", result)
     if not result.is_success():
         raise SolverError(f"{solver} failed: {result.get_solution_result()}")
     return result

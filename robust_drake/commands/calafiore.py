@@ -32,61 +32,17 @@ def register(subparsers):
 
 
 def plot_study(out, directory):
-    """Analogs of CI figs. 3-6: torque reconstruction, reference, nominal and robust tracking
-    errors (same y-scale, so the two laws compare at a glance), torques; returns the paths written."""
-    import numpy as np
-
-    from robust_drake.experiments.calafiore import torque_reconstruction
-    from robust_drake.plotting import subplots
+    """Write the analogs of CI figs. 3-6 (:func:`robust_drake.experiments.calafiore.study_figures`)
+    into ``directory``; returns the paths written."""
+    from robust_drake.experiments.calafiore import study_figures
 
     os.makedirs(directory, exist_ok=True)
-    rec = out.get("_reconstruction") or torque_reconstruction()
-    fig, axes = subplots(2, 1, sharex=True, figsize=(9, 5))
-    for j, ax in enumerate(axes):
-        ax.plot(rec["t"], rec["tau_meas"][:, j], ".", ms=3, label="measured")
-        ax.plot(rec["t"], rec["tau_rec"][:, j], "-", label="reconstructed (theta0)")
-        ax.plot(rec["t_samples"], rec["tau_samples"][:, j], "o", mfc="none", label="n_m samples used")
-        ax.set(ylabel=f"tau{j + 1} [N m]")
-    axes[0].set_title("CI fig. 3: measured vs reconstructed torque (theta0 from 5 samples)", fontsize=10)
-    axes[1].set(xlabel="t [s]")
-    axes[0].legend()
-    fig3 = os.path.join(str(directory), "fig3_torque_reconstruction.png")
-    fig.savefig(fig3)
-    logs = out["runs"][0]["_logs"]
-    t = logs["nominal"]["t"]
-    joints = ["joint 1", "joint 2"]
-    legend = dict(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False)
-    paths = [os.path.join(str(directory), f) for f in
-             ("fig4_reference.png", "fig5_nominal_errors.png", "fig6_robust_errors.png", "torques.png")]
-    fig, ax = subplots(figsize=(7.5, 3.5))
-    ax.plot(t, logs["nominal"]["q_d"], label=joints)
-    ax.set(xlabel="t [s]", ylabel="q_d [rad]", title="joint reference (CI fig. 4)")
-    ax.grid(alpha=0.3)
-    ax.legend(**legend)
-    fig.tight_layout()
-    fig.savefig(paths[0])
-    e_max = max(float(np.max(np.abs(logs[law]["e"]))) for law in ("nominal", "robust")) * 1.05 or 1.0
-    for law, num, path in (("nominal", 5, paths[1]), ("robust", 6, paths[2])):
-        fig, ax = subplots(figsize=(7.5, 3.5))
-        ax.plot(logs[law]["t"], logs[law]["e"], label=joints)
-        ax.set(xlabel="t [s]", ylabel="e = q - q_d [rad]", ylim=(-e_max, e_max),
-               title=f"tracking errors, {law} control (CI fig. {num}; same scale as fig. {11 - num})")
-        ax.grid(alpha=0.3)
-        ax.legend(**legend)
-        fig.tight_layout()
-        fig.savefig(path)
-    fig, axes = subplots(2, 1, figsize=(7.5, 5), sharex=True)
-    for j, ax in enumerate(axes):
-        for law, style in (("nominal", "-"), ("robust", "--")):
-            ax.plot(logs[law]["t"], np.asarray(logs[law]["u"])[:, j], style, lw=0.9, label=f"{law} law")
-        ax.set_ylabel(f"u{j + 1} [N m]")
-        ax.grid(alpha=0.3)
-    axes[0].legend(**legend)
-    axes[0].set_title("commanded torques, first drawn true arm")
-    axes[-1].set_xlabel("t [s]")
-    fig.tight_layout()
-    fig.savefig(paths[3])
-    return [fig3, *paths]
+    paths = []
+    for name, fig in study_figures(out).items():
+        path = os.path.join(str(directory), name)
+        fig.savefig(path, bbox_inches="tight")
+        paths.append(path)
+    return paths
 
 
 def run(args) -> int:

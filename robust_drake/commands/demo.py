@@ -29,34 +29,35 @@ def register(sub):
     p = sub.add_parser("demo", help="the main job: SP1/SP2 on the D2R2 CPT (JS tables 2-3) and plots",
                        description="1. SP1 and SP2 on the D2R2 CPT, unloaded and with the maximum load, beside "
                                    "Jaritz & Spong tables 2-3 (no friction compensation, as simulate); plots "
-                                   "OUT/cpt_<controller>_<load>.png. 2. The measured-data loop on a built-in "
+                                   "OUT/cpt_none.png, cpt_max.png (SP1 and SP2 together). 2. The measured-data loop on a built-in "
                                    "simulated experiment: identify, find a hidden cogging torque, repair the "
                                    "model, and use it as compensation inside SP1 (report in OUT/repair/).")
     p.add_argument("--out", default="out", help="folder for plots and the repair report (default out/)")
     p.add_argument("--workers", type=int, default=None, help="parallel runs (default: the core count)")
     p.add_argument("--duration", type=float, default=None, help="shorten every closed-loop run [s] (testing)")
     p.add_argument("--skip-repair", action="store_true", help="only the CPT table (part 1)")
-    add_output_flags(p, plot="DIR", files="cpt_<controller>_<load>.png (default: into --out)")
+    add_output_flags(p, plot="DIR", files="cpt_none.png, cpt_max.png: SP1 and SP2 together (default: into --out)")
     p.set_defaults(func=run)
 
 
 def _run_one(item):
     from robust_drake.diagram import ClosedLoopConfig, simulate
-    from robust_drake.plotting import plot_tracking
 
     controller, load, out_dir, duration = item
     res = simulate(ClosedLoopConfig(controller=controller, load=load, trajectory="cpt", duration=duration))
-    plot = pathlib.Path(out_dir) / f"cpt_{controller}_{load}.png"
-    full = duration is None  # a shortened run is not the paper's figure
-    plot_tracking(res, plot, title=f"{controller.upper()}, CPT ({res.sim_seconds:.3g} s), load {load}, no friction "
-                                   "compensation" + (" (cf. JS figs. 4-5)" if full else ", shortened run"))
     row = res.to_dict()
-    row.update(controller=controller, load=load, plot=str(plot))
+    row.update(controller=controller, load=load)
+    step = 5  # 500 Hz for the figure
+    row["logs"] = {"t": res.t[::step].tolist(), "e": (res.q - res.q_d)[::step].tolist(),
+                   "tau": res.tau[::step].tolist(), "q": res.q[::step].tolist(), "q_d": res.q_d[::step].tolist()}
     return row
 
 
 def cpt_table(out_dir, workers=None, duration=None, progress=True):
-    """Run SP1/SP2 x {none, max} on the CPT; return rows (dicts) in table order."""
+    """Run SP1/SP2 x {none, max} on the CPT; return rows (dicts) in table order. One figure per
+    load, ``cpt_<load>.png`` in ``out_dir``: SP1 and SP2 overlaid (SP2 dashed), the simulated
+    task-space criteria beside the published ones (JS tables 2-3, cf. JS figs. 4-5)."""
+    from robust_drake.experiments.jaritz_spong import comparison_figure
     from robust_drake.parallel import run_parallel
 
     items = [(c, load, str(out_dir), duration) for load in ("none", "max") for c in ("sp1", "sp2")]
@@ -70,6 +71,22 @@ def cpt_table(out_dir, workers=None, duration=None, progress=True):
             row = {"controller": item[0], "load": item[1], "error": o.error}
         row["published"] = dict(zip(METRIC_KEYS, PUBLISHED_CPT[(item[0], item[1])]))
         rows.append(row)
+    for load, table in (("none", 2), ("max", 3)):
+        runs = [r for r in rows if r["load"] == load and "logs" in r]
+        if not runs:
+            continue
+        dur = runs[0]["sim_seconds"]
+        full = duration is None
+        fig = comparison_figure(runs, f"SP1 and SP2 on the D2R2, CPT ({dur:.3g} s), load {load}, no friction "
+                                      f"compensation; JS table {table}" + (", cf. JS figs. 4-5" if full
+                                                                           else ", shortened run"))
+        path = pathlib.Path(out_dir) / f"cpt_{load}.png"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fig.savefig(path, dpi=90)
+        for r in runs:
+            r["plot"] = str(path)
+    for r in rows:
+        r.pop("logs", None)
     return rows
 
 

@@ -66,7 +66,9 @@ def run(args) -> int:
     if args.out is not None and not args.out.strip():
         raise RobustDrakeError("--out is empty; give a file path")
     plots = plot_dir(args)
-    controllers = [c.strip() for c in args.controllers.split(",") if c.strip()]
+    from robust_drake.registry import canonical_or_same
+
+    controllers = [canonical_or_same("controller", c.strip()) for c in args.controllers.split(",") if c.strip()]
     if not controllers:
         raise RobustDrakeError("--controllers is empty")
     if args.draws < 1 and not args.corners:

@@ -49,9 +49,17 @@ def register(sub):
     p.add_argument("--diagram", metavar="FILE", default=None,
                    help="write the closed loop's block diagram: FILE.svg/.png/.pdf (needs Graphviz's dot) "
                         "or FILE.dot (the source)")
-    p.add_argument("--meshcat", action="store_true",
-                   help="show the arm in Meshcat (pydrake's browser viewer on localhost; the run is "
-                        "recorded for replay; on a terminal the command waits for Enter before exiting)")
+    p.add_argument("--meshcat", nargs="?", const="live", default=None, metavar="FILE.html",
+                   help="show the arm in Meshcat (pydrake's browser viewer on localhost) and record the run; "
+                        "with FILE.html also write a self-contained replay of it (open it in any browser, "
+                        "no server; play it from 'Open Controls'). The live server stays up for "
+                        "--meshcat-wait S, or on a terminal until Enter")
+    p.add_argument("--meshcat-wait", type=non_negative(float, "--meshcat-wait"), default=None, metavar="S",
+                   help="keep the live Meshcat server up S seconds after the run (default: until Enter on a "
+                        "terminal, 0 otherwise)")
+    p.add_argument("--animation", metavar="FILE", default=None,
+                   help="planar 2-link arms: a stick-figure animation of the run, FILE.gif or FILE.html "
+                        "(matplotlib; no browser needed)")
     add_output_flags(p, plot="DIR", files="tracking.png, task_path.png (planar 2-link arms)")
     p.set_defaults(func=run)
 
@@ -92,7 +100,8 @@ def run(args) -> int:
 
     from robust_drake.log import slow_step
 
-    vis = None
+    _check_view_options(args)
+    meshcat = vis = None
     if args.meshcat:
         from robust_drake.viz import add_meshcat
 
@@ -101,10 +110,7 @@ def run(args) -> int:
 
     with slow_step(f"simulating {args.controller} on {args.robot}, {args.trajectory}, {args.rate:g} Hz ..."):
         res = loop.simulate()
-    if vis is not None:
-        from robust_drake.viz import publish_recording
-
-        publish_recording(vis)
+    views = _save_views(args, loop, res, meshcat, vis)
     if args.diagram:
         from robust_drake.viz import render_diagram
 
@@ -127,15 +133,65 @@ def run(args) -> int:
     out.update(_model_output(args, loop, design))
     if plot:
         out["plots"] = [plot] + ([str(plots / "task_path.png")] if res.link_lengths else [])
+    out.update(views)
     if args.json:
         print_json(out)
     else:
         _print_text(args, out, loop, res, plot)
-    if vis is not None and sys.stdin.isatty():
-        input("Meshcat: replay the recording in the browser; press Enter to stop the server ")
+    if vis is not None:
+        _keep_server(args, meshcat)
     return 1 if res.diverged else 0
 
 
+def _check_view_options(args) -> None:
+    """--meshcat FILE.html, --meshcat-wait S (needs --meshcat), --animation FILE.gif|.html."""
+    if args.meshcat_wait is not None and args.meshcat is None:
+        raise RobustDrakeError("--meshcat-wait needs --meshcat")
+    if args.meshcat not in (None, "live") and not args.meshcat.lower().endswith((".html", ".htm")):
+        raise RobustDrakeError(f"--meshcat takes a .html file name for the replay (got {args.meshcat!r}), "
+                               "or nothing for the live viewer only")
+    if args.animation and not args.animation.lower().endswith((".gif", ".html")):
+        raise RobustDrakeError(f"--animation takes a .gif or .html file name (got {args.animation!r})")
+
+
+def _save_views(args, loop, res, meshcat, vis) -> dict:
+    """After the run: publish the Meshcat recording (and write its replay), write the animation;
+    returns the JSON keys ``meshcat_replay`` / ``animation`` of the files written."""
+    import sys
+
+    out = {}
+    if vis is not None:
+        from robust_drake.viz import publish_recording, save_replay
+
+        if args.meshcat != "live":
+            out["meshcat_replay"] = str(save_replay(meshcat, vis, args.meshcat, loop=loop, result=res))
+            print(f"meshcat replay: {out['meshcat_replay']}", file=sys.stderr)
+        else:
+            publish_recording(vis)
+    if args.animation:
+        from robust_drake.viz import save_animation
+
+        if not res.link_lengths:
+            raise RobustDrakeError("--animation draws planar 2-link arms; use --meshcat FILE.html for this arm")
+        out["animation"] = str(save_animation(res, args.animation))
+        print(f"animation: {out['animation']}", file=sys.stderr)
+    return out
+
+
+def _keep_server(args, meshcat) -> None:
+    """Keep the live Meshcat server up: --meshcat-wait S seconds, else until Enter on a terminal."""
+    import sys
+    import time
+
+    if args.meshcat_wait is not None:
+        if args.meshcat_wait > 0:
+            print(f"meshcat: serving {meshcat.web_url()} for {args.meshcat_wait:g} s (Ctrl-C stops)", file=sys.stderr)
+            time.sleep(args.meshcat_wait)
+    elif sys.stdin.isatty():
+        input("Meshcat: replay the recording in the browser; press Enter to stop the server ")
+    elif args.meshcat == "live":
+        print("meshcat: no terminal, so the live server stops now; keep it up with --meshcat-wait S or "
+              "save a replay with --meshcat FILE.html", file=sys.stderr)
 def _model_output(args, loop, design) -> dict:
     """The identified models and the design file a run used (for --json)."""
     out = {}

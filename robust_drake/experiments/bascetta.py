@@ -125,53 +125,93 @@ def run_case_study(gains=(25.0, 5.0), duration=None, boundary=0.01, perturbation
 
 
 def plot_case_study(study: dict, outdir, other: dict | None = None) -> list:
-    """Analogues of BR figs. 1-6 as PNG files in ``outdir``; ``other`` is a second study (other
-    gains) for fig. 6. Needs ``keep_results=True`` studies. Returns the paths written."""
+    """Write :func:`case_study_figures` as PNG files into ``outdir``; returns the paths written."""
     import pathlib
-
-    from robust_drake.kinematics import planar_forward_kinematics
-    from robust_drake.plotting import subplots
 
     outdir = pathlib.Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
-    (rA, cA), (rB, cB) = study["_results"]["A"], study["_results"]["B"]
     paths = []
+    for name, fig in case_study_figures(study, other).items():
+        fig.savefig(outdir / name, dpi=110)
+        paths.append(str(outdir / name))
+    return paths
+
+
+def case_study_figures(study: dict, other: dict | None = None) -> dict:
+    """Analogues of BR figs. 1-6 as matplotlib Figures, by file name (``fig3_w_base.png``, ...);
+    ``other`` is a second study (other gains) for fig. 6. Needs ``keep_results=True`` studies.
+
+    Figs. 3-4 (the additional control w per joint) add what the section compares and the two
+    curves hide, lying within a line width of each other: the cumulative energy
+    sqrt(int_0^t w_j^2 dt) of Case A and Case B and its relative difference (the paper reports
+    11 % less for Case B, BR section V); figs. 5-6 add rho_B - rho_A."""
+    from robust_drake.kinematics import planar_forward_kinematics
+    from robust_drake.plotting import style, subplots
+
+    (rA, cA), (rB, cB) = study["_results"]["A"], study["_results"]["B"]
+    figures = {}
+    g0 = study["gains"]
+    gains = f"K_P = {g0['K_P']:g}, K_D = {g0['K_D']:g}"
 
     def save(fig, name):
-        p = outdir / name
         fig.tight_layout()
-        fig.savefig(p, dpi=120)
-        paths.append(str(p))
+        figures[name] = fig
 
-    fig, ax = subplots(1, 1, figsize=(6, 3.5))
-    ax.plot(rA.t, rA.q_d[:, 0], label="q1_d")
-    ax.plot(rA.t, rA.q_d[:, 1], label="q2_d")
-    ax.set_xlabel("t [s]"), ax.set_ylabel("rad"), ax.legend(), ax.set_title("Fig. 1: joint space trajectory")
-    save(fig, "fig1_joint_trajectory.png")
-    fig, ax = subplots(1, 1, figsize=(5, 5))
-    p = planar_forward_kinematics(rA.q_d, (1.0, 1.0))
-    ax.plot(p[:, 0], p[:, 1])
-    ax.set_aspect("equal"), ax.set_xlabel("x [m]"), ax.set_ylabel("y [m]"), ax.set_title("Fig. 2: Cartesian trajectory")
-    save(fig, "fig2_cartesian_trajectory.png")
-    for j, (fname, label) in enumerate([("fig3_w_base.png", "base"), ("fig4_w_elbow.png", "elbow")]):
-        fig, ax = subplots(1, 1, figsize=(7, 3.5))
-        ax.plot(rA.t, rA.extra["w"][:, j], "r-", lw=0.8, label="Case A")
-        ax.plot(rB.t, rB.extra["w"][:, j], "b:", lw=1.0, label="Case B")
-        ax.set_xlabel("t [s]"), ax.set_ylabel("w [rad/s^2]"), ax.legend()
-        ax.set_title(f"Fig. {3 + j}: additional control w, {label} joint")
-        save(fig, fname)
-    for fnum, st in [(5, study), (6, other)]:
-        if st is None:
-            continue
-        (ra, _), (rb, _) = st["_results"]["A"], st["_results"]["B"]
-        fig, ax = subplots(1, 1, figsize=(7, 3.5))
-        ax.plot(ra.t, ra.extra["rho"][:, 0], "r-", label="Case A")
-        ax.plot(rb.t, rb.extra["rho"][:, 0], "b:", label="Case B")
-        g = st["gains"]
-        ax.set_xlabel("t [s]"), ax.set_ylabel("rho [rad/s^2]"), ax.legend()
-        ax.set_title(f"Fig. {fnum}: gain rho, K_P = {g['K_P']:g}, K_D = {g['K_D']:g}")
-        save(fig, f"fig{fnum}_rho_kp{g['K_P']:g}.png")
-    return paths
+    with style():
+        fig, ax = subplots(1, 1, figsize=(6.5, 3.6))
+        ax.plot(rA.t, rA.q_d[:, 0], label="q1,d (base)")
+        ax.plot(rA.t, rA.q_d[:, 1], label="q2,d (elbow)")
+        ax.set_xlabel("t [s]"), ax.set_ylabel("[rad]"), ax.legend()
+        ax.set_title("Fig. 1: joint-space trajectory")
+        save(fig, "fig1_joint_trajectory.png")
+        fig, ax = subplots(1, 1, figsize=(5.2, 5.2))
+        p = planar_forward_kinematics(rA.q_d, (1.0, 1.0))
+        ax.plot(p[:, 0], p[:, 1], lw=2)
+        ax.plot(p[0, 0], p[0, 1], "ko", label="start")
+        ax.set_aspect("equal"), ax.set_xlabel("x [m]"), ax.set_ylabel("y [m]"), ax.legend()
+        ax.set_title("Fig. 2: Cartesian trajectory")
+        save(fig, "fig2_cartesian_trajectory.png")
+        T = cA.period
+        for j, (fname, label) in enumerate([("fig3_w_base.png", "base"), ("fig4_w_elbow.png", "elbow")]):
+            fig, (a1, a2) = subplots(2, 1, figsize=(7.5, 5.6), sharex=True, height_ratios=(3, 2))
+            wA, wB = rA.extra["w"][:, j], rB.extra["w"][:, j]
+            a1.plot(rA.t, wA, color="C3", lw=1.6, label="Case A (BR eqs. 12-13)")
+            a1.plot(rB.t, wB, color="C0", lw=1.0, ls=(0, (4, 2)), label="Case B (BR eqs. 17-20)")
+            a1.set_ylabel("w [rad/s^2]"), a1.legend(loc="best")
+            a1.set_title(f"Fig. {3 + j}: additional control w, {label} joint ({gains})")
+            EA, EB = np.sqrt(np.cumsum(wA ** 2) * T), np.sqrt(np.cumsum(wB ** 2) * T)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                rel = np.where(EA > 1e-9, 100.0 * (1.0 - EB / EA), np.nan)
+            a2.plot(rA.t, rel, color="k", lw=1.2, label="Case B below Case A")
+            a2.axhline(100 * PAPER_REDUCTION, color="C3", ls="--", lw=0.9, label="BR section V: 11 % (all joints)")
+            a2.axhline(0.0, color="0.6", lw=0.8)
+            from robust_drake.plotting import window_limits
+
+            lo, hi = window_limits(rA.t, np.nan_to_num(rel), 0.1)  # the ratio of two near-zero energies at t ~ 0
+            a2.set_ylim(min(lo, -1.0), max(hi, 100 * PAPER_REDUCTION + 2.0))
+            a2.set_ylabel("energy of w so far:\n1 - E_B/E_A [%]"), a2.set_xlabel("t [s]")
+            red = 1.0 - EB[-1] / EA[-1] if EA[-1] > 0 else float("nan")
+            a2.set_title(f"E(t) = sqrt(int_0^t w^2 dt): Case B {100 * red:.1f} % below Case A at the end "
+                         f"(all joints {100 * study.get('w_energy_reduction_B_vs_A', float('nan')):.1f} %)",
+                         fontsize=9)
+            a2.legend(loc="center right")
+            save(fig, fname)
+        for fnum, st in [(5, study), (6, other)]:
+            if st is None:
+                continue
+            (ra, _), (rb, _) = st["_results"]["A"], st["_results"]["B"]
+            fig, (a1, a2) = subplots(2, 1, figsize=(7.5, 5.2), sharex=True, height_ratios=(3, 2))
+            a1.plot(ra.t, ra.extra["rho"][:, 0], color="C3", lw=1.6, label="Case A")
+            a1.plot(rb.t, rb.extra["rho"][:, 0], color="C0", lw=1.0, ls=(0, (4, 2)), label="Case B")
+            g = st["gains"]
+            a1.set_ylabel("rho [rad/s^2]"), a1.legend()
+            a1.set_title(f"Fig. {fnum}: gain rho, K_P = {g['K_P']:g}, K_D = {g['K_D']:g}")
+            n = min(len(ra.t), len(rb.t))
+            a2.plot(ra.t[:n], rb.extra["rho"][:n, 0] - ra.extra["rho"][:n, 0], color="k", lw=1.0)
+            a2.axhline(0.0, color="0.6", lw=0.8)
+            a2.set_ylabel("rho_B - rho_A\n[rad/s^2]"), a2.set_xlabel("t [s]")
+            save(fig, f"fig{fnum}_rho_kp{g['K_P']:g}.png")
+    return figures
 
 
 # ============================================================================ section II-C: constant rho
@@ -280,6 +320,10 @@ def sensitivity_study(axes=None, duration=None, workers=None, progress=False) ->
     return rows
 
 
+from robust_drake.plotting import styled  # noqa: E402 - the shared figure style
+
+
+@styled
 def plot_sensitivity(rows: list[dict], path) -> str:
     import pathlib
 
@@ -299,7 +343,7 @@ def plot_sensitivity(rows: list[dict], path) -> str:
         ax.set(xlabel={"gains": "K_P (K_D = sqrt K_P)", "boundary": "boundary layer [rad]",
                        "length": "line length / default", "T": "travel time T [s]",
                        "beta0_scale": "beta_0 scale"}.get(name, name), ylabel="w energy, B below A [%]")
-    axes[0][0].legend(fontsize=7)
+    axes[0][0].legend(fontsize=8.5)
     fig.suptitle("Bascetta & Rocco: energy of w, Case B vs Case A (one parameter at a time)")
     fig.tight_layout()
     fig.savefig(path, dpi=90)

@@ -267,15 +267,16 @@ def verdict(draws, region_info, hint: str = "a smaller confidence set (more or r
     return {"guaranteed": False, "verdict": "not shown: " + "; ".join(reasons) + f" ({hint})"}
 
 
-def run_control(model, cfg: ControlConfig | None = None, progress=None) -> dict:
+def run_control(model, cfg: ControlConfig | None = None, progress=None, desc: str = "control") -> dict:
     """The whole path (module docstring); a JSON-able dict with the keys ``logs-to-control``
     prints (``uncertainty``, ``rho``, ``bound``, ``max_error``, ``draws``, ``rejected``,
     ``region``, ``epsilon_rule``, ``K``, ``Lambda``, ``pd_max_error``, ``guaranteed``,
-    ``verdict``) plus ``controller``, ``design``, ``nominal`` and ``design_file``."""
+    ``verdict``) plus ``controller``, ``design``, ``nominal`` and ``design_file``. With ``progress``
+    None a bar (terminal, notebook) or a log line every ~10 % labelled ``desc`` follows the steps."""
     from robust_drake.diagram import build_closed_loop
     from robust_drake.experiments.plant_draws import draw_plants
     from robust_drake.experiments.ultimate_bound import bound_region
-    from robust_drake.log import progress_callback
+    from robust_drake.log import progress_bar, progress_callback
     from robust_drake.loop_defaults import robot_rate
     from robust_drake.model_repair.model import as_identified_model
     from robust_drake.models import make_plant
@@ -284,6 +285,8 @@ def run_control(model, cfg: ControlConfig | None = None, progress=None) -> dict:
     cfg = cfg or ControlConfig()
     cfg.check()
     log = progress_callback(progress)
+    # steps: design + nominal run, the set's draws, each draw's run, PD
+    bar = progress_bar(int(cfg.draws) + 3, desc, unit="steps", enabled=progress is None)
     m = as_identified_model(model)
     reg = InverseDynamicsRegressor.from_robot(m.robot)
     if list(reg.base_names) != list(m.base_names):
@@ -294,6 +297,7 @@ def run_control(model, cfg: ControlConfig | None = None, progress=None) -> dict:
     log(f"{cfg.controller} designed from the {1 - cfg.alpha:g} set of {m.robot} ({m.estimator}); nominal run ...")
     loop = build_closed_loop(nominal)
     nom = loop.simulate()
+    bar.update(1)
     plant = make_plant(m.robot)
     region, region_info = bound_region(plant, des["q_ref"], np.random.default_rng(cfg.seed + 1))
     arm = _plant_arm(m, cfg.friction)
@@ -303,15 +307,19 @@ def run_control(model, cfg: ControlConfig | None = None, progress=None) -> dict:
     plants, rejected = draw_plants(reg, des["theta0"], des["P"], int(cfg.draws), np.random.default_rng(cfg.seed),
                                    cfg.boundary_share)
     prev = des["epsilon_rule"].get("previous_rule_epsilon")
+    bar.update(1)
     draws = []
     for i, d in enumerate(plants):
         log(f"draw {i + 1}/{len(plants)} ({d.kind})")
         draws.append(_run_draw(nominal, arm, d, des, region, plant, ell, cfg.transient, prev))
+        bar.update(1)
     if region_info["kind"] == "tube":
         region_info["consistent"] = bool(all(max(d["bound_per_joint"]) <= region_info["delta"] for d in draws))
     pd = build_closed_loop(dataclasses.replace(nominal, controller="pd", model=None, controller_params={
         "K": des["params"]["K"], "Lambda": des["params"]["Lambda"]})).simulate()
     pd_err = float(np.max(np.abs(pd.q - pd.q_d)[pd.t >= cfg.transient]))
+    bar.update(1)
+    bar.close()
     out = _result(m, cfg, des, rate, nominal, loop, nom, draws, rejected, region_info, pd_err)
     if cfg.design:
         out["design_file"] = write_design(out, nominal, cfg.design)

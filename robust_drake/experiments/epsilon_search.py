@@ -138,6 +138,10 @@ def epsilon_search(controllers=("sp1", "sp2", "zc", "lgplus"), factors=DEFAULT_F
             "runs": runs, "results": results}
 
 
+from robust_drake.plotting import styled  # noqa: E402 - the shared figure style
+
+
+@styled
 def plot_search(out: dict, directory) -> str:
     """Vibration fraction and |error_task| against epsilon / table 1, one curve per controller and model."""
     import pathlib
@@ -162,7 +166,7 @@ def plot_search(out: dict, directory) -> str:
     a1.set(xlabel="epsilon / table 1", ylabel=f"torque power above {out['f_cut']:g} Hz (fraction)",
            title="vibration measure (line: threshold)")
     a2.set(xlabel="epsilon / table 1", ylabel="|error_task| [m]", title="tracking (JS eq. 58)")
-    a1.legend(fontsize=7)
+    a1.legend(fontsize=8.5)
     fig.tight_layout()
     path = d / "epsilon_search.png"
     fig.savefig(path, dpi=90)

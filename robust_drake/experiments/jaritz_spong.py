@@ -288,68 +288,139 @@ def _group_name(table: int, group: list[dict]) -> str:
     return "; ".join(parts)
 
 
-def _plot_group(ax_row, table: int, group: list[dict], L) -> None:
-    """One row of :func:`plot_table`: joint errors [rad] | task-space error [m] | torques [N m]."""
+#: line colours per (overlaid controller, joint): SP1 in the joint colours, SP2 in darker ones, dashed, on top
+_PAIR_COLORS = (("C0", "C1"), ("#08306b", "#7f2704"))
+_TASK_COLORS = ("k", "C3")
+
+
+def _task_error(lg, L):
     from robust_drake.kinematics import planar_forward_kinematics
 
+    return np.linalg.norm(planar_forward_kinematics(np.asarray(lg["q"]), L)
+                          - planar_forward_kinematics(np.asarray(lg["q_d"]), L), axis=1)
+
+
+def _published_note(r) -> str:
+    """'LG+: maxerr_task 3.41 mm (JS 3.39), |error_task| 22.1 mm (JS 21.6)' for one row."""
+    pub = r.get("published") or {}
+    tag = LABELS.get(r["controller"], r["controller"])
+    parts = []
+    for key, what in (("maxerr_task", "maxerr_task"), ("error_task", "|error_task|")):
+        sim = r.get(key)
+        if sim is None or not np.isfinite(sim):
+            continue
+        paper = pub.get(key)
+        parts.append(f"{what} {1e3 * sim:.3g} mm" + (f" (JS {1e3 * paper:.3g})" if paper is not None else ""))
+    return f"{tag}: " + ", ".join(parts) if parts else ""
+
+
+def _plot_group(ax_row, table, group: list[dict], L) -> None:
+    """One row of :func:`plot_table`: joint errors [rad] | task-space error [mm] | torques [N m]; SP1
+    solid in the joint colours, SP2 dashed in darker ones drawn on top (so both show where they
+    coincide); the simulated and the published task-space criteria written in the middle panel."""
+    notes = []
     for k, r in enumerate(group):
-        lg, ls = r["logs"], ("-", "--")[k % 2]
+        lg, ls = r["logs"], ("-", (0, (4, 2.5)))[k % 2]
         t, e, tau = np.asarray(lg["t"]), np.asarray(lg["e"]), np.asarray(lg["tau"])
-        task = np.linalg.norm(planar_forward_kinematics(np.asarray(lg["q"]), L)
-                              - planar_forward_kinematics(np.asarray(lg["q_d"]), L), axis=1)
+        task = _task_error(lg, L)
         tag = LABELS.get(r["controller"], r["controller"])
+        colors = _PAIR_COLORS[k % 2] if len(group) > 1 else ("C0", "C1")
+        lw = (1.1, 1.0)[k % 2]
         for j in range(e.shape[1]):
-            ax_row[0].plot(t, e[:, j], ls=ls, color=f"C{j}", lw=0.8, label=f"{tag} e{j + 1}")
-            ax_row[2].plot(t, tau[:, j], ls=ls, color=f"C{j}", lw=0.7, label=f"{tag} tau{j + 1}")
-        ax_row[1].plot(t, task, ls=ls, color="k", lw=0.8, label=f"{tag}")
+            ax_row[0].plot(t, e[:, j], ls=ls, color=colors[j % 2], lw=lw, label=f"{tag} e{j + 1}", zorder=2 + k)
+            ax_row[2].plot(t, tau[:, j], ls=ls, color=colors[j % 2], lw=lw, label=f"{tag} tau{j + 1}", zorder=2 + k)
+        ax_row[1].plot(t, 1e3 * task, ls=ls, color=_TASK_COLORS[k % 2], lw=lw, label=tag, zorder=2 + k)
+        notes.append(_published_note(r))
         skip = float(r.get("metrics_skip") or 0.0)
-        if skip > 0:
+        if skip > 0 and k == 0:
             for ax in ax_row:
                 ax.axvspan(t[0], t[0] + skip, color="0.92", zorder=0,
-                           label="not in the metrics" if ax is ax_row[1] and k == 0 else None)
-    ax_row[0].set_ylabel("joint error [rad]", fontsize=8)
-    ax_row[1].set_ylabel("task-space error [m]", fontsize=8)
-    ax_row[2].set_ylabel("torque [N m]", fontsize=8)
-    ax_row[1].set_title(_group_name(table, group), fontsize=9)
-    ax_row[2].legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0), frameon=False)
-    ax_row[0].legend(fontsize=6, loc="upper right", frameon=False, ncol=2)
-    if any(float(r.get("metrics_skip") or 0.0) > 0 for r in group):
-        ax_row[1].legend(fontsize=6, loc="upper right", frameon=False)
-    for ax in ax_row:
-        ax.grid(alpha=0.3)
+                           label=None)
+    notes = [n for n in notes if n]
+    from robust_drake.models import D2R2_TORQUE_LIMIT
+
+    for sign in (1, -1):
+        ax_row[2].axhline(sign * D2R2_TORQUE_LIMIT, color="k", ls="--", lw=0.8,
+                          label=f"saturation +-{D2R2_TORQUE_LIMIT:g} N m" if sign > 0 else None)
+    ax_row[0].set_ylabel("joint error [rad]")
+    ax_row[1].set_ylabel("task-space error [mm]")
+    ax_row[2].set_ylabel("torque [N m]")
+    ax_row[1].set_title(_group_name(table, group) + "".join("\n" + n for n in notes), fontsize=9)
+    for ax in (ax_row[0], ax_row[2]):
+        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), ncol=1)
+
+
+def _column_limits(axes, groups, L) -> None:
+    """One y-range per column over every row, set on the samples the metrics measure (after the
+    skipped first second of the circle): the start-up transient does not flatten the rest."""
+    from robust_drake.plotting import window_limits
+
+    cols = {0: [], 1: [], 2: []}
+    for group in groups:
+        for r in group:
+            lg = r["logs"]
+            t = np.asarray(lg["t"])
+            skip = float(r.get("metrics_skip") or 0.0)
+            for c, y in ((0, np.asarray(lg["e"])), (1, 1e3 * _task_error(lg, L)), (2, np.asarray(lg["tau"]))):
+                cols[c].append(window_limits(t, y, skip, pad=0.0) if y.size else (0.0, 0.0))
+    for c, spans in cols.items():
+        lo, hi = min(a for a, _ in spans), max(b for _, b in spans)
+        if c == 1:
+            lo = 0.0
+        if c == 2:  # the saturation lines stay in view
+            from robust_drake.models import D2R2_TORQUE_LIMIT
+
+            lo, hi = min(lo, -D2R2_TORQUE_LIMIT), max(hi, D2R2_TORQUE_LIMIT)
+        pad = 0.12 * (hi - lo if hi > lo else 1.0)
+        for ax in axes[:, c]:
+            ax.set_ylim(lo - (0 if c == 1 else pad), hi + 2.2 * pad if c == 1 else hi + pad)
+
+
+def table_figure(table: int, rows: list[dict]):
+    """The figure analog of a table as a matplotlib ``Figure``: per controller, joint errors [rad],
+    task-space error [mm] and torques [N m] against t [s], in separate columns whose y-limits are
+    shared by all rows (set on the samples the metrics measure: the circle's first second is
+    shaded and its transient clipped), so controllers compare row to row; SP1 and SP2 (nearly
+    identical) share a row, SP1 solid and SP2 dashed in darker colours on top; each row states its
+    simulated task-space criteria beside the published ones (JS tables 2-7).
+
+    Tables 5 and 7 are the runs of JS figures 4-7 and 8-11 (maximum load, compensation)."""
+    rows = [r for r in rows if "logs" in r]
+    if not rows:
+        raise RobustDrakeError("table_figure needs rows run with logs=True")
+    dur = max(float(np.asarray(r["logs"]["t"])[-1]) for r in rows)
+    title = TABLES[table]["title"] if table in TABLES else str(table)
+    return comparison_figure(rows, f"Table {table}: {title} (simulated D2R2, {dur:.3g} s per run; y-limits shared "
+                                   "by all rows, set after the shaded interval the metrics skip)", table=table)
 
 
 def plot_table(table: int, rows: list[dict], out_dir) -> pathlib.Path:
-    """Figure analog for a table: per controller, joint errors [rad], task-space error [m] and
-    torques [N m] against t [s], in separate columns whose y-limits are shared by all rows, so
-    controllers compare row to row; SP1 and SP2 (nearly identical) share a row, SP1 solid and
-    SP2 dashed; the interval the metrics skip (circle: first 1 s) is shaded.
-
-    Tables 5 and 7 are the runs of JS figures 4-7 and 8-11 (maximum load, compensation)."""
-    from robust_drake.plotting import subplots
-
-    from robust_drake.models import get_arm
-
+    """Write :func:`table_figure` to ``out_dir/table<N>.png``; returns the path."""
     out_dir = pathlib.Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    rows = [r for r in rows if "logs" in r]
-    if not rows:
-        raise RobustDrakeError("plot_table needs rows run with logs=True")
-    L = get_arm("d2r2").link_lengths
-    groups = _table_groups(rows)
-    fig, axes = subplots(len(groups), 3, figsize=(15, 2.7 * len(groups) + 0.8), squeeze=False,
-                         sharex=True, sharey="col")
-    for ax_row, group in zip(axes, groups):
-        _plot_group(ax_row, table, group, L)
-    for ax in axes[-1]:
-        ax.set_xlabel("t [s]")
-    dur = max(float(np.asarray(r["logs"]["t"])[-1]) for r in rows)
-    fig.suptitle(f"Table {table}: {TABLES[table]['title']} (simulated D2R2, {dur:.3g} s per run; "
-                 "y-limits shared by all rows)", fontsize=10)
-    fig.tight_layout()
     path = out_dir / f"table{table}.png"
-    fig.savefig(path, dpi=90)
+    table_figure(table, rows).savefig(path, dpi=90)
     return path
+
+
+def comparison_figure(rows: list[dict], title: str, table=None):
+    """The layout of :func:`plot_table` for any rows run with logs (``run_one``): SP1 and SP2 in one
+    row, one row per other controller; returns the ``Figure`` (the demo's CPT figures)."""
+    from robust_drake.models import get_arm
+    from robust_drake.plotting import style, subplots
+
+    L = get_arm("d2r2").link_lengths
+    groups = _table_groups([r for r in rows if "logs" in r])
+    with style():
+        fig, axes = subplots(len(groups), 3, figsize=(16, 3.1 * len(groups) + 0.9), squeeze=False, sharex=True)
+        for ax_row, group in zip(axes, groups):
+            _plot_group(ax_row, table, group, L)
+        _column_limits(axes, groups, L)
+        for ax in axes[-1]:
+            ax.set_xlabel("t [s]")
+        fig.suptitle(title)
+        fig.tight_layout()
+    return fig
 
 
 # ------------------------------------------------------------------------------ sample-rate study
@@ -384,31 +455,38 @@ def sweep_rate(controllers=("sp1", "sp2", "zc"), rates=(250, 500, 1000, 2500, 50
     return rows
 
 
-def plot_sweep(rows: list[dict], path) -> pathlib.Path:
-    from robust_drake.plotting import subplots
+def sweep_figure(rows: list[dict]):
+    """Section 11 as a ``Figure``: |error_task| [m] and chattering (torque total variation per
+    second [N m/s]) against the sample rate [Hz], one line per controller (paper names)."""
+    from robust_drake.plotting import style, subplots
 
+    with style():
+        fig, (a1, a2) = subplots(1, 2, figsize=(10.5, 4.0))
+        for c in dict.fromkeys(r["controller"] for r in rows):
+            rs = sorted((r for r in rows if r["controller"] == c), key=lambda r: r["rate"])
+            rate = [r["rate"] for r in rs]
+            a1.semilogx(rate, [r["error_task"] for r in rs], "o-", label=LABELS.get(c, c))
+            a2.loglog(rate, [r["chattering"] for r in rs], "o-", label=LABELS.get(c, c))
+        rates = sorted({r["rate"] for r in rows})
+        for ax in (a1, a2):
+            ax.set_xticks(rates)
+            ax.set_xticklabels([f"{x:g}" for x in rates])
+            ax.minorticks_off()
+            ax.set_xlabel("sample rate [Hz]")
+        a1.set_ylabel("|error_task| [m]")
+        a2.set_ylabel("torque total variation [N m/s]")
+        a1.legend()
+        a1.set_title("tracking (JS eq. 58)")
+        a2.set_title("chattering")
+        fig.tight_layout()
+    return fig
+
+
+def plot_sweep(rows: list[dict], path) -> pathlib.Path:
+    """Write :func:`sweep_figure` to ``path`` (PNG)."""
     path = pathlib.Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig, (a1, a2) = subplots(1, 2, figsize=(10, 3.8))
-    for c in dict.fromkeys(r["controller"] for r in rows):
-        rs = sorted((r for r in rows if r["controller"] == c), key=lambda r: r["rate"])
-        rate = [r["rate"] for r in rs]
-        a1.semilogx(rate, [r["error_task"] for r in rs], "o-", label=LABELS.get(c, c))
-        a2.loglog(rate, [r["chattering"] for r in rs], "o-", label=LABELS.get(c, c))
-    rates = sorted({r["rate"] for r in rows})
-    for ax in (a1, a2):
-        ax.set_xticks(rates)
-        ax.set_xticklabels([f"{x:g}" for x in rates])
-        ax.minorticks_off()
-    a1.set_xlabel("sample rate [Hz]")
-    a1.set_ylabel("|error_task| [m]")
-    a2.set_xlabel("sample rate [Hz]")
-    a2.set_ylabel("torque total variation [N m / s]")
-    a1.legend()
-    a1.set_title("tracking (JS eq. 58)")
-    a2.set_title("chattering")
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    sweep_figure(rows).savefig(path, dpi=90)
     return path
 
 
@@ -438,23 +516,30 @@ def friction_curve(qd_max: float = 3.0, points: int = 601) -> dict:
             "coulomb": list(D2R2_COULOMB), "viscous": list(D2R2_VISCOUS), "k_hat": list(D2R2_K_HAT)}
 
 
-def plot_friction_curve(path, qd_max: float = 3.0) -> pathlib.Path:
-    """Write the JS fig. 3 analog to ``path`` (png)."""
-    from robust_drake.plotting import subplots
+def friction_figure(qd_max: float = 3.0):
+    """JS fig. 3 analog as a ``Figure``: friction torque F_j [N m] against qd_j [rad/s] of the
+    simulated plant, its Coulomb approximation (eqs. 89-90) and the Coulomb + viscous one."""
+    from robust_drake.plotting import style, subplots
 
     c = friction_curve(qd_max)
+    with style():
+        fig, axes = subplots(1, 2, figsize=(10.5, 4.0))
+        for j, ax in enumerate(axes):
+            ax.plot(c["qd"], c["plant"][:, j], "-", lw=1.6, label="plant friction (eq. 86)")
+            ax.plot(c["qd"], c["coulomb_hat"][:, j], ":", lw=1.6, label="Coulomb approximation (eqs. 89-90)")
+            ax.plot(c["qd"], c["coulomb_viscous_hat"][:, j], "--", label="Coulomb + viscous compensation")
+            ax.set(xlabel=f"qd{j + 1} [rad/s]", ylabel=f"F{j + 1} [N m]", title=f"joint {j + 1}")
+        axes[0].legend(fontsize=8.5)
+        fig.suptitle("Friction torque and its approximation (cf. JS fig. 3, simulated D2R2 parameters)")
+        fig.tight_layout()
+    return fig
+
+
+def plot_friction_curve(path, qd_max: float = 3.0) -> pathlib.Path:
+    """Write the JS fig. 3 analog (:func:`friction_figure`) to ``path`` (png)."""
     path = pathlib.Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig, axes = subplots(1, 2, figsize=(10, 3.8))
-    for j, ax in enumerate(axes):
-        ax.plot(c["qd"], c["plant"][:, j], "-", label="plant friction (eq. 86)")
-        ax.plot(c["qd"], c["coulomb_hat"][:, j], ":", label="Coulomb approximation (eqs. 89-90)")
-        ax.plot(c["qd"], c["coulomb_viscous_hat"][:, j], "--", lw=0.8, label="Coulomb + viscous compensation")
-        ax.set(xlabel=f"qd{j + 1} [rad/s]", ylabel=f"F{j + 1} [N m]", title=f"joint {j + 1}")
-    axes[0].legend(fontsize=7)
-    fig.suptitle("Friction torque and its approximation (cf. JS fig. 3, simulated D2R2 parameters)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    friction_figure(qd_max).savefig(path, dpi=90)
     return path
 
 

@@ -270,7 +270,8 @@ def run_logs_to_control(cfg: LogsToControlConfig | None = None, out_dir: str | N
     model, theta0, P, reg, truth, truth_r = identified_set(cfg, out_dir)
     out = run_control(model, ControlConfig(controller="ci", alpha=cfg.alpha, draws=cfg.draws,
                                            boundary_share=cfg.boundary_share, track_duration=cfg.track_duration,
-                                           transient=cfg.transient, rate=cfg.rate, seed=cfg.seed, friction=False))
+                                           transient=cfg.transient, rate=cfg.rate, seed=cfg.seed, friction=False),
+                      desc="logs-to-control")
     out.update(truth_radius=truth_r, theta_true=truth.tolist(), spread=_spread(out["draws"], truth, list(reg.base_names)),
                **verdict(out["draws"], out["region"]))
     return out
@@ -284,6 +285,10 @@ def verdict(draws, region_info) -> dict:
                            "--duration or a lower --noise-fraction gives a smaller one")
 
 
+from robust_drake.plotting import styled  # noqa: E402 - the shared figure style
+
+
+@styled
 def plot_logs_to_control(out: dict, path) -> str:
     """Bar figure of a :func:`run_logs_to_control` result: per draw (boundary / inside, Mahalanobis
     radius) the largest joint error after the transient and its predicted ultimate bound [rad],
@@ -299,11 +304,11 @@ def plot_logs_to_control(out: dict, path) -> str:
     ax.bar(x + 0.2, [r["bound"] for r in d], 0.4, label="predicted ultimate bound")
     ax.axhline(out["pd_max_error"], color="C3", ls="--", lw=1, label="PD, URDF arm")
     ax.set_yscale("log")
-    ax.set_xticks(x, [f"{r['kind'][0]} {r['radius']:.2f}" for r in d], fontsize=7)
+    ax.set_xticks(x, [f"{r['kind'][0]} {r['radius']:.2f}" for r in d], fontsize=8.5)
     ax.set_xlabel("draw (b = boundary, i = inside; Mahalanobis radius)")
     ax.set_ylabel("[rad]")
     ax.set_title(f"{out['robot']}: CI eq. 15 from the identified {100 * (1 - out['alpha']):g} % set", fontsize=9)
-    ax.legend(fontsize=7)
+    ax.legend(fontsize=8.5)
     fig.tight_layout()
     path = pathlib.Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

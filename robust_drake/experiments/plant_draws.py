@@ -190,6 +190,9 @@ class _PhysicalProgram:
         from pydrake.solvers import ClarabelSolver
 
         res = ClarabelSolver().Solve(self.prog)
+        from robust_drake.log import debug_solve
+
+        debug_solve("nearest physically valid plant", res)
         if not res.is_success():
             return None
         return res.GetSolution(self.y), float(res.get_optimal_cost())

@@ -120,6 +120,9 @@ def consistent_fit(A: np.ndarray | None, b: np.ndarray | None, K: np.ndarray, pi
     for k in range(10 * n_links, p_std):
         prog.AddBoundingBoxConstraint(0.0, np.inf, pi[k])
     result = Solve(prog)
+    from robust_drake.log import debug_solve
+
+    debug_solve("physically consistent fit (pseudo-inertia LMIs)", result)
     name = result.get_solver_id().name()
     if not result.is_success():
         raise SolverError(f"physically consistent fit failed ({name}: {result.get_solution_result()})")

@@ -494,7 +494,7 @@ def validate_raw(raw: RawData, n_joints: int | None = None, allow_degrees: bool 
         i = int(np.argmax(peak))
         raise DataError(
             f"{src}: |{column_name(raw, 'q', i)}| (joint {i}) reaches {peak[i]:.4g}, more than two turns: positions look like "
-            "degrees (convert to rad); pass allow_degrees=True if the joint really turns that far"
+            "degrees: convert them to rad"
         )
     return {"dt": float(np.mean(dt)), "jitter": jitter, "max_dt": float(dt.max()), "warnings": warns,
             "counts": counts}

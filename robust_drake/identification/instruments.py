@@ -309,8 +309,21 @@ def cutoff_sweep(paths, robot, regressor, cutoffs, torque: str = "tau_meas", wei
 
 
 def plot_cutoff_sweep(sweep: dict, path: str, top: int = 4) -> str:
-    """LS and IV parameters / URDF value against the cut-off, for the ``top`` largest nominal
-    parameters (one panel each); writes ``path``."""
+    """Write :func:`cutoff_sweep_figure` to ``path``; returns ``path``."""
+    cutoff_sweep_figure(sweep, top).savefig(path, dpi=80)
+    return path
+
+
+def cutoff_sweep_figure(sweep: dict, top: int = 4):
+    """LS and IV parameters / URDF value against the cut-off [Hz], for the ``top`` largest nominal
+    parameters (one panel each), as a matplotlib ``Figure``."""
+    from robust_drake.plotting import style
+
+    with style():
+        return _cutoff_sweep_figure(sweep, top)
+
+
+def _cutoff_sweep_figure(sweep: dict, top: int):
     from robust_drake.plotting import subplots
 
     nom = np.asarray(sweep["nominal"])
@@ -323,17 +336,16 @@ def plot_cutoff_sweep(sweep: dict, path: str, top: int = 4) -> str:
         ax.plot(fc, ls[:, k] / nom[k], "o-", label="least squares")
         ax.plot(fc, iv[:, k] / nom[k], "s-", label="instrumental variables")
         ax.axhline(1.0, color="k", ls=":", lw=1, label="URDF")
-        ax.set_title(sweep["names"][k], fontsize=8)
+        ax.set_title(sweep["names"][k], fontsize=9)
         ax.set_xlabel("cut-off [Hz]")
     axes[0, 0].set_ylabel("fitted / URDF")
-    axes[0, 0].legend(fontsize=7)
+    axes[0, 0].legend(fontsize=8)
     fig.suptitle("LS and IV base parameters against the cut-off (errors in variables: LS shrinks as the "
-                 "cut-off lets more of them through)", fontsize=9)
+                 "cut-off lets more of them through)", fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=80)
-    return path
+    return fig
 
 
 __all__ = ["solve_iv", "solve_iv_normal", "fit_iv_blocks", "iv_sandwich", "noise_gain", "local_mean", "hausman",
-           "ls_covariance", "fit_model_iv", "cutoff_sweep", "plot_cutoff_sweep",
+           "ls_covariance", "fit_model_iv", "cutoff_sweep", "plot_cutoff_sweep", "cutoff_sweep_figure",
            "INSTRUMENT_RATIO"]

@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from robust_drake.errors import RobustDrakeError
+from robust_drake.errors import RobustDrakeError, option_name
 from robust_drake.model_repair import report as RP
 from robust_drake.identification.data import DEFAULT_CUTOFF_HZ, DataWarning
 from robust_drake.model_repair.model import IdentifiedModel
@@ -160,16 +160,17 @@ def check_output_dir(out_dir, overwrite: bool) -> str:
 
     text = os.fspath(out_dir)
     if not str(text).strip():
-        raise RobustDrakeError("--out is empty: give the folder for report.md, report.json and the plots")
+        raise RobustDrakeError(f"{option_name('--out', 'out')} is empty: give the folder for report.md, report.json "
+                               "and the plots")
     path = os.path.abspath(text)
     if os.path.exists(path) and not os.path.isdir(path):
-        raise RobustDrakeError(f"--out {text} is a file, not a folder; choose a folder name")
+        raise RobustDrakeError(f"{option_name('--out', 'out')} {text} is a file, not a folder; choose a folder name")
     if os.path.isdir(path) and not overwrite:
         held = [f for f in REPORT_FILES if os.path.exists(os.path.join(path, f))]
         if held:
             raise RobustDrakeError(
-                f"{text} holds an earlier repair report ({', '.join(held)}); choose another --out or "
-                "pass --force to replace it")
+                f"{text} holds an earlier repair report ({', '.join(held)}); choose another "
+                f"{option_name('--out', 'out= folder')} or pass {option_name('--force', 'overwrite=True')} to replace it")
     parent = os.path.dirname(path)
     try:
         os.makedirs(parent, exist_ok=True)
@@ -270,7 +271,9 @@ def run_repair(fit_paths, options: RepairOptions, validate_paths=None, out_dir=N
     from robust_drake.identification import input_checks as IC
     from robust_drake.model_repair import stages as S
 
-    from robust_drake.log import progress_callback
+    from robust_drake.log import StageTimer, progress_callback
+
+    S = StageTimer(S, total=8, desc="repair", enabled=progress is None)  # a bar (terminal, notebook) or a line per stage; -v: timings
 
     log = progress_callback(progress)  # None: the "robust_drake" logger at INFO
     opts = options

@@ -166,6 +166,13 @@ def torque_validate_figure(res: RepairResult) -> "Figure":
     per validation segment (file, or gap-free stretch of one), each on its own time axis t [s],
     one row per joint (numbered from 0, as in the report); y-limits shared along a row. Nothing is drawn across a file boundary.
     Long series are drawn as their min/max envelope (``plotting.envelope``: every spike kept)."""
+    from robust_drake.plotting import style
+
+    with style():
+        return _torque_validate_figure(res)
+
+
+def _torque_validate_figure(res: RepairResult) -> "Figure":
     from robust_drake.plotting import envelope, subplots
 
     inp, base, fin = res.inputs, res.baseline, res.final
@@ -178,7 +185,7 @@ def torque_validate_figure(res: RepairResult) -> "Figure":
     for c, s in enumerate(shown):
         m = val.segment == s
         src = val.conditioning[s].get("source") if s < len(val.conditioning) else None
-        axes[0, c].set_title(os.path.basename(str(src)) if src else f"segment {s + 1}", fontsize=8)
+        axes[0, c].set_title(os.path.basename(str(src)) if src else f"segment {s + 1}", fontsize=9)
         for j in range(val.n):
             ax = axes[j, c]
             ax.plot(*envelope(val.t[m], val.tau[m, j]), "k", lw=1.2, label="measured")
@@ -188,7 +195,7 @@ def torque_validate_figure(res: RepairResult) -> "Figure":
             if c == 0:
                 ax.set_ylabel(f"tau joint {j} ({inp.joint_names[j]}) [N m]")
         axes[-1, c].set_xlabel("t [s] (time of this file)")
-    axes[0, -1].legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.02, 1.0), frameon=False)
+    axes[0, -1].legend(loc="upper left", bbox_to_anchor=(1.02, 1.0))
     more = f"; first {len(shown)} of {len(segs)} segments shown" if len(segs) > len(shown) else ""
     fig.suptitle(f"validation torques, one column per validation file{more}", fontsize=10)
     fig.tight_layout()

@@ -184,16 +184,16 @@ SPECTRUM_FLOOR = 1e-6
 def _binned_mean(x: np.ndarray, r: np.ndarray, bins: int = 16, min_count: int = 20):
     """Mean of ``r`` in ``bins`` equal-width bins of ``x`` over its 1-99 % range (bins with fewer
     than ``min_count`` samples dropped): (bin centres, means)."""
+    from scipy.stats import binned_statistic
+
     lo, hi = np.quantile(x, [0.01, 0.99])
     if not hi > lo:
         return np.array([lo]), np.array([r.mean()])
-    edges = np.linspace(lo, hi, bins + 1)
-    k = np.clip(np.digitize(x, edges) - 1, 0, bins - 1)
     inside = (x >= lo) & (x <= hi)
-    count = np.bincount(k[inside], minlength=bins)
-    total = np.bincount(k[inside], weights=r[inside], minlength=bins)
+    mean, edges, _ = binned_statistic(x[inside], r[inside], "mean", bins=bins, range=(lo, hi))
+    count = binned_statistic(x[inside], r[inside], "count", bins=bins, range=(lo, hi))[0]
     ok = count >= min_count
-    return 0.5 * (edges[:-1] + edges[1:])[ok], total[ok] / count[ok]
+    return 0.5 * (edges[:-1] + edges[1:])[ok], mean[ok]
 
 
 def _spectrum_panel(ax, data: IdentData, series) -> None:
@@ -220,7 +220,7 @@ def _reversal_panel(ax, data: IdentData, series) -> None:
     ax.axvline(0, color="0.5", lw=0.6)
     ax.set(xlabel="time from qd_j reversal [s]", ylabel="mean residual r_j [N m]",
            title="around velocity reversals")
-    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0), frameon=False)
+    ax.legend(fontsize=8.5, loc="upper left", bbox_to_anchor=(1.02, 1.0), frameon=False)
 
 
 def residual_figure(data: IdentData, residual: np.ndarray, title: str = "residual",
@@ -251,6 +251,13 @@ def residual_figure(data: IdentData, residual: np.ndarray, title: str = "residua
     matplotlib.figure.Figure
         Detached from pyplot.
     """
+    from robust_drake.plotting import style
+
+    with style():
+        return _residual_figure(data, residual, title, other, labels)
+
+
+def _residual_figure(data, residual, title, other, labels):
     from robust_drake.plotting import subplots
 
     series = [(residual, labels[0], "tab:red")] + ([(other, labels[1], "tab:blue")] if other is not None else [])

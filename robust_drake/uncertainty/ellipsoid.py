@@ -525,6 +525,9 @@ def _drake_run(prog, x, data, solver, tol, solver_options=None):
     t0 = time.perf_counter()
     res = s.Solve(prog, None, opts)
     solve_s = time.perf_counter() - t0
+    from robust_drake.log import debug_solve
+
+    debug_solve("confidence-ellipsoid SDP (CI section 5)", res, solve_s)
     status = str(res.get_solution_result()).split(".")[-1]
     if not res.is_success():
         raise SolverError(f"{solver} failed on the ellipsoid SDP: {status}")

@@ -97,6 +97,9 @@ def full_rank_lmi(D0, L, R, scalars, n_scalars: int | None = None):
     prog.AddLinearMatrixInequalityConstraint([F0, *Fs, Fmu], [*s, mu])
     prog.AddLinearCost(-mu)
     res = ClarabelSolver().Solve(prog)
+    from robust_drake.log import debug_solve
+
+    debug_solve("full-rank certificate SDP", res)
     status = str(res.get_solution_result()).split(".")[-1]
     s_val = np.clip(res.GetSolution(s), 0.0, None) if res.is_success() else np.zeros(len(used))
     svec = np.zeros(n_s)

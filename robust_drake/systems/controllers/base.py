@@ -21,7 +21,21 @@ from pydrake.systems.framework import LeafSystem
 
 
 class DiscreteController(LeafSystem):
-    """Sampled controller skeleton; subclasses implement :meth:`compute` (pure math)."""
+    """Sampled controller skeleton; subclasses implement :meth:`compute` (pure math).
+
+    Ports ``x_d`` (3n: q_d, qd_d, qdd_d), ``q``, ``v``, ``v_error`` (n each) -> ``u`` (n) [N m],
+    a discrete state updated every ``period`` s and held between samples (zero-order hold), as
+    the closed loop expects (BUILD_NOTES "Architecture contract").
+
+    Parameters
+    ----------
+    n : int
+        Number of joints.
+    period : float
+        Sample period [s] (``ctx.period`` in a factory; 1/2500 s at 2500 Hz).
+    name : str, optional
+        The block's name in the diagram.
+    """
 
     def __init__(self, n: int, period: float, name: str | None = None):
         super().__init__()
