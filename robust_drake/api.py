@@ -179,8 +179,9 @@ def repair(fit: str | Sequence[str], robot: str, *, validate: str | Sequence[str
         DFKI torque column, ``"tau_meas"`` or ``"tau_con"`` (ignored for canonical CSVs).
     cutoff_hz : float, optional
         Zero-phase low-pass cut-off for q and tau [Hz]; None uses the default (8 Hz).
-    effects : sequence of str, optional
-        Candidate effect kinds to consider (None: the whole library).
+    effects : sequence of str or str, optional
+        Candidate effect kinds to consider, a list or one comma-separated string as the command
+        line's ``--effects`` (None: the whole library; an empty string is refused).
     min_gain : float, optional
         Minimum relative held-out error reduction to accept an effect (None: 0.05).
     max_effects : int
@@ -214,21 +215,23 @@ def repair(fit: str | Sequence[str], robot: str, *, validate: str | Sequence[str
     from robust_drake.model_repair.selection import MIN_GAIN
     from robust_drake.log import progress_callback
 
-    fits = [fit] if isinstance(fit, (str, os.PathLike)) else list(fit)
-    vals = None if validate is None else ([validate] if isinstance(validate, (str, os.PathLike))
-                                          else list(validate))
-    opts = RepairOptions(robot=robot, torque=torque,
-                         cutoff_hz=DEFAULT_CUTOFF_HZ if cutoff_hz is None else cutoff_hz,
-                         kinds=None if effects is None else list(effects),
-                         min_gain=MIN_GAIN if min_gain is None else min_gain,
-                         max_effects=max_effects, consistent=consistent, replay=replay,
-                         plots=plots, nominal=nominal, instruments=instruments)
-    if sigma_rel is not None:
-        if not sigma_rel > 0:
-            raise RobustDrakeError(f"sigma_rel must be > 0, got {sigma_rel}")
-        opts.sigma_rel = sigma_rel
-    return run_repair(fits, opts, validate_paths=vals, out_dir=None if out is None else str(out),
-                      progress=progress_callback(progress), overwrite=overwrite)
+    from robust_drake.errors import OptionError
+
+    try:  # the command line's validation (RepairOptions.validate, pipeline.run_repair): one set of rules
+        opts = RepairOptions(robot=robot, torque=torque,
+                             cutoff_hz=DEFAULT_CUTOFF_HZ if cutoff_hz is None else cutoff_hz,
+                             kinds=effects, min_gain=MIN_GAIN if min_gain is None else min_gain,
+                             max_effects=max_effects, consistent=consistent, replay=replay,
+                             plots=plots, nominal=nominal, instruments=instruments,
+                             **({} if sigma_rel is None else {"sigma_rel": sigma_rel}))
+        if progress is not None and not callable(progress):
+            raise OptionError("progress", f"must be a callable progress(message) or None, got {progress!r}")
+        return run_repair(fit, opts, validate_paths=validate, out_dir=out,
+                          progress=progress_callback(progress), overwrite=overwrite)
+    except OptionError as exc:
+        if exc.option == "kinds":  # the API's keyword for RepairOptions.kinds
+            raise OptionError("effects", exc.text) from None
+        raise
 
 
 def ellipsoid(data: Mapping[str, "np.ndarray"] | None = None, *, samples: int = 5,

@@ -233,6 +233,12 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(glue_negative_values(parser, sys.argv[1:] if argv is None else list(argv)))
     configure_logging(args.verbosity)
+    import logging
+
+    # the command's own handler prints the package's messages; pydrake installs a root handler the
+    # first time Drake logs, after which every line appeared twice ("INFO:robust_drake:...")
+    package_logger = logging.getLogger("robust_drake")
+    propagate, package_logger.propagate = package_logger.propagate, False
     try:
         status = args.func(args)
     except RobustDrakeError as exc:
@@ -241,7 +247,29 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
+    except OSError as exc:
+        message = disk_error_message(exc)
+        if message is None:
+            raise
+        print(f"error: {message}", file=sys.stderr)
+        return 2
+    finally:
+        package_logger.propagate = propagate
     return int(status or 0)
+
+
+def disk_error_message(exc: OSError) -> str | None:
+    """One line for a write that failed for lack of room (ENOSPC: disk full; EFBIG: the file-size
+    limit of ``ulimit -f``; EDQUOT: quota), naming the file; None for other OS errors."""
+    import errno
+
+    if exc.errno not in (errno.ENOSPC, errno.EFBIG, errno.EDQUOT):
+        return None
+    where = f" writing {exc.filename}" if exc.filename else ""
+    why = {errno.ENOSPC: "disk full", errno.EFBIG: "file too large for the file-size limit (ulimit -f)",
+           errno.EDQUOT: "disk quota exceeded"}[exc.errno]
+    return (f"{why}{where}: free some space (or raise the limit) and run again; an earlier result in the "
+            "output place is left as it was")
 
 
 if __name__ == "__main__":  # pragma: no cover

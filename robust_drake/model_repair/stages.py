@@ -101,6 +101,9 @@ def load_inputs(fit_paths, validate_paths, opts, log) -> Inputs:
     n = getattr(regressor, "n", None)
     if getattr(regressor, "plant", None) is not None:
         warn += IC.prismatic_warnings(regressor.plant)
+        from robust_drake.models import root_weld_warning
+
+        warn += [w for w in [root_weld_warning(opts.robot, regressor.plant)] if w]  # also in report.json/md
     names = joint_names_of(regressor, n) if n is not None else None
     data = load(fit_paths, robot=opts.robot, n_joints=n, torque=opts.torque, cutoff_hz=opts.cutoff_hz,
                 velocities=opts.velocities, joint_names=names)
