@@ -104,6 +104,10 @@ def load_inputs(fit_paths, validate_paths, opts, log) -> Inputs:
         from robust_drake.models import root_weld_warning
 
         warn += [w for w in [root_weld_warning(opts.robot, regressor.plant)] if w]  # also in report.json/md
+    if getattr(regressor, "damping_dropped", None):
+        warn.append("the URDF's joint damping (" + ", ".join(f"{j} {b:g} N m s/rad" for j, b in regressor.damping_dropped)
+                    + ") is not a separate parameter: the fitted viscous level fv of each joint carries it (one column, "
+                    "not two equal ones), and the replay's plant runs without the URDF damping")
     names = joint_names_of(regressor, n) if n is not None else None
     data = load(fit_paths, robot=opts.robot, n_joints=n, torque=opts.torque, cutoff_hz=opts.cutoff_hz,
                 velocities=opts.velocities, joint_names=names)
