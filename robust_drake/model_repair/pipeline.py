@@ -490,6 +490,8 @@ def run_repair(fit_paths, options: RepairOptions, validate_paths=None, out_dir=N
         warnings.simplefilter("always", DataWarning)
         inp = S.load_inputs(fit_paths, validate_paths, opts, log)
         base = S.fit_baseline(inp, opts, log)
+        if validate_paths:  # validation data that the fitted baseline does not carry over to
+            inp.warnings += IC.transfer_check(inp.val.tau, inp.val.tau - base.val_residual, base.fit.rms)
         est = S.choose_estimator(inp, base, opts, log)
         sel = S.select_effects(inp, base, est, opts, log)
         sel = S.resolve_torque_scale(inp, base, est, sel, opts, log)

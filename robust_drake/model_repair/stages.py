@@ -128,6 +128,8 @@ def load_inputs(fit_paths, validate_paths, opts, log) -> Inputs:
         warn.append(budget_warning)
     units, unit_warnings = IC.torque_scale_check(fit, regressor)
     warn += unit_warnings
+    if validate_paths:  # the same plausibility checks on the validation files
+        warn += [f"validation files: {w}" for w in IC.torque_scale_check(val, regressor)[1]]
     names = joint_names_of(regressor, data.n)
     warn += exclusion_messages(fit, exclude, names)
     frozen = frozen_joints(data)
