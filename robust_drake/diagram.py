@@ -57,6 +57,9 @@ DIVERGENCE_LIMIT = STATE_LIMIT  # |q| [rad] or |v| [rad/s]; see robust_drake.div
 #: Logged samples per logger of one run (one per controller tick): ~150 B each for the
 #: 2-joint arm, so 2e6 samples (800 s at 2500 Hz) keep the logs near 300 MB.
 MAX_LOG_SAMPLES = 2_000_000
+#: fewest controller ticks a run may have (check_run_size): with fewer the metrics are NaN and
+#: "not diverged" would say nothing
+MIN_TICKS = 10
 #: Fixed RK2 steps of one run (several per tick at low rates; ~ an hour of wall time).
 MAX_INTEGRATOR_STEPS = 50_000_000
 
@@ -66,6 +69,10 @@ def check_run_size(duration: float, rate: float) -> None:
     :data:`MAX_LOG_SAMPLES` or whose integrator steps exceed :data:`MAX_INTEGRATOR_STEPS`,
     before anything is allocated (``duration`` [s], ``rate`` [Hz])."""
     ticks = float(duration) * float(rate)
+    if not ticks >= MIN_TICKS:
+        raise RobustDrakeError(
+            f"{duration:g} s at {rate:g} Hz is {ticks:.3g} controller tick(s): a run needs at least {MIN_TICKS} "
+            "(its error criteria and divergence test come from the ticks); lengthen the duration or raise the rate")
     if ticks + 1 > MAX_LOG_SAMPLES:
         raise RobustDrakeError(
             f"{duration:g} s at {rate:g} Hz is {ticks:.3g} controller ticks, each logged: more "
