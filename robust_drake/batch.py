@@ -33,6 +33,7 @@ import os
 import pathlib
 import shutil
 import socket
+import sys
 import time
 import uuid
 from collections import OrderedDict
@@ -363,8 +364,12 @@ def _write_parquet(df, path: pathlib.Path, metadata: dict) -> None:
     meta.update(metadata)
     table = table.replace_schema_metadata(meta)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    pq.write_table(table, tmp)
-    os.replace(tmp, path)
+    try:
+        pq.write_table(table, tmp)
+        os.replace(tmp, path)
+    except BaseException:  # disk full, ulimit -f: no torn temporary file left beside the results
+        tmp.unlink(missing_ok=True)
+        raise
 
 
 def _file_fingerprint(path: pathlib.Path) -> str | None:
@@ -483,18 +488,20 @@ def run_batch(
     options = {"reuse": reuse, "divergence_error": float(divergence_error)}
     new_rows: dict[str, dict] = {}
     t0 = time.perf_counter()
-    interrupted = False
     try:
         if todo:
             _run_todo(todo, options, new_rows, store, workers=workers, scheduler=scheduler,
                       progress=progress, flush_seconds=flush_seconds, on_row=on_row)
-    except KeyboardInterrupt:
-        interrupted = True
-        raise
     finally:
         if store is not None:
-            try:
-                store.flush(final=not interrupted and len(new_rows) == len(todo))
+            pending = sys.exc_info()[1]  # an error already on its way out, if any
+            try:  # every finished row goes into <out>; the parts are removed only once it holds them
+                store.flush(final=True)
+            except OSError:
+                if pending is None:
+                    raise
+                # an error is already on its way (e.g. the disk filled up while writing a part): the
+                # parts stay for the next run, which resumes from them
             finally:
                 store.close()
     rows = []

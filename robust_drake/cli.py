@@ -239,11 +239,15 @@ def main(argv: list[str] | None = None) -> int:
     # first time Drake logs, after which every line appeared twice ("INFO:robust_drake:...")
     package_logger = logging.getLogger("robust_drake")
     propagate, package_logger.propagate = package_logger.propagate, False
+    previous_term = _catch_sigterm()
     try:
         status = args.func(args)
     except RobustDrakeError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    except Terminated:
+        print("terminated", file=sys.stderr)
+        return 143
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
@@ -255,7 +259,31 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     finally:
         package_logger.propagate = propagate
+        if previous_term is not None:
+            import signal
+
+            signal.signal(signal.SIGTERM, previous_term)
     return int(status or 0)
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised in the main thread so that a command cleans up as after Ctrl-C (workers
+    stopped, finished batch rows saved, temporary folders removed; no leaked semaphores)."""
+
+
+def _catch_sigterm():
+    """Turn SIGTERM into :class:`Terminated` while a command runs; returns the previous handler
+    (None when not in the main thread, where signals cannot be set)."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        return None
+
+    def handler(signum, frame):
+        raise Terminated()
+
+    return signal.signal(signal.SIGTERM, handler)
 
 
 def disk_error_message(exc: OSError) -> str | None:
