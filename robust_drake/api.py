@@ -261,7 +261,7 @@ def ellipsoid(data: Mapping[str, "np.ndarray"] | None = None, *, samples: int = 
     formulation : str
         ``"chordal"`` SDP, ``"full"`` dense SDP, ``"energy"`` closed-form bound, or ``"auto"``.
     draws : int
-        Delta draws for the sampling certificate (0 skips it).
+        Delta draws for the sampling certificate (>= 1: every ellipsoid is certified).
     seed : int
         Random seed of the simulated experiment and the certificate.
 
@@ -275,7 +275,15 @@ def ellipsoid(data: Mapping[str, "np.ndarray"] | None = None, *, samples: int = 
 
     from robust_drake.experiments.calafiore import run_ellipsoid_experiment
 
+    for name, value, low in (("samples", samples, 1), ("draws", draws, 1), ("seed", seed, 0)):
+        if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < low:
+            raise RobustDrakeError(f"ellipsoid: {name} must be a whole number >= {low}, got {value!r}")
+    for name, value in (("solver", solver), ("backend", backend), ("formulation", formulation)):
+        if not isinstance(value, str):
+            raise RobustDrakeError(f"ellipsoid: {name} must be a name (str), got {value!r}")
     if data is not None:
+        if not isinstance(data, Mapping):
+            raise RobustDrakeError(f"ellipsoid: data must be a mapping of arrays (q, qd, qdd, tau), got {type(data).__name__}")
         missing = [k for k in ("q", "qd", "qdd", "tau") if k not in data]
         if missing:
             raise RobustDrakeError(f"ellipsoid: data lacks {missing} (need q, qd, qdd, tau)")

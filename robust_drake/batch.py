@@ -31,6 +31,7 @@ import json
 import math
 import os
 import pathlib
+import re
 import shutil
 import socket
 import sys
@@ -132,12 +133,16 @@ def run_scenario(scenario: Scenario | dict, *, reuse: bool = True,
         loop.config.divergence_error = float(divergence_error)
         res = loop.simulate(None if scenario.duration is None else float(scenario.duration))
         row.update({k: float(res.metrics.get(k, math.nan)) for k in METRIC_KEYS})
+        joints = {k: float(v) for k, v in res.metrics.items() if re.fullmatch(r"(max)?err(or)?\d+", k)}
+        row.update(joints)  # every joint's criteria (METRIC_KEYS name the 2-link ones)
+        maxerrs = [v for k, v in joints.items() if k.startswith("maxerr")]
+        row["maxerr_joints"] = max(maxerrs) if maxerrs else math.nan  # defined on every arm [rad]
         row.update(_torque_columns(res.torque_stats or {}))
         row["sim_seconds"] = float(res.sim_seconds)
         if res.diverged:  # robust_drake.divergence.is_diverged, applied by ClosedLoop.simulate
             row["status"] = "diverged"
             row["error"] = f"diverged: {res.divergence_reason}"
-            row.update({k: math.nan for k in METRIC_KEYS})  # never in percentiles
+            row.update({k: math.nan for k in row if k in METRIC_KEYS or re.fullmatch(r"(max)?err(or)?\d+|maxerr_joints", k)})  # never in percentiles
         else:
             row["status"] = "ok"
     except Exception as exc:  # noqa: BLE001 - recorded in the row, the batch continues
@@ -221,7 +226,7 @@ class BatchLock:
                     os.close(fd)
                 raise RobustDrakeError(
                     f"{results_path} is in use by another batch run (PID {other}, lock "
-                    f"{self.path}); wait for it to finish or choose another --out") from None
+                    f"{self.path}); wait for it to finish or choose another results file (out)") from None
             # The holder before us may have unlinked the file after we opened it: lock again
             # on the file that is now at the path.
             try:
@@ -278,8 +283,8 @@ class ResultStore:
             if not force:
                 raise RobustDrakeError(
                     f"{self.path} holds results of a different batch (fingerprint {existing}, "
-                    f"this batch {fingerprint}); choose another --out or pass --force to "
-                    "overwrite it")
+                    f"this batch {fingerprint}); choose another results file (out) or overwrite it "
+                    "(force=True; --force on the command line)")
         if force:  # start over, whatever the file held
             self._remove_all()
         self.path.parent.mkdir(parents=True, exist_ok=True)

@@ -258,6 +258,27 @@ def _urdf_parent_joint(path, link: str):
     return None
 
 
+def _refuse_mimic(path) -> None:
+    """RobustDrakeError naming a ``<mimic>`` joint: Drake turns it into a coupler constraint, which
+    a continuous-time plant does not support, and its column would count as a joint of its own."""
+    import xml.etree.ElementTree as ET
+
+    if not str(path).endswith(".urdf"):
+        return
+    try:
+        root = ET.parse(str(path)).getroot()
+    except (ET.ParseError, OSError):
+        return
+    for j in root.iter("joint"):
+        m = j.find("mimic")
+        if m is not None:
+            raise RobustDrakeError(
+                f"{path}: joint {j.get('name')!r} mimics joint {m.get('joint')!r} (a coupled joint, q = "
+                f"{m.get('multiplier', '1')} q_{m.get('joint')} + {m.get('offset', '0')}): coupled joints are not supported "
+                "(a continuous-time plant has no coupler constraints, and a log has no column for it); make it a "
+                "joint of its own or weld it (type=\"fixed\")")
+
+
 def _weld_roots(plant, instances, path, floating_base: bool):
     """Weld the model's root link to the world (a URDF without a world joint), unless a floating
     base is asked for; returns the welded root body (None if nothing was welded).  More than one
@@ -339,6 +360,7 @@ def _populate(plant, robot, load, time_step, before_finalize, floating_base,
               use_sampled_output_ports):
     """The one loading sequence: parse, hook, weld the root, finalize, check the joints."""
     path, instances = _parse_into(plant, robot, load)
+    _refuse_mimic(path)
     if before_finalize is not None:
         before_finalize(plant)
     welded = _weld_roots(plant, instances, path, floating_base)
@@ -464,7 +486,11 @@ def set_d2r2_theta(plant, context, theta) -> None:
     from pydrake.multibody.tree import RotationalInertia, SpatialInertia
 
     _check_two_link(plant)
-    th1, th2, th3 = (float(x) for x in np.asarray(theta, dtype=float).reshape(3))
+    theta = np.asarray(theta, dtype=float).reshape(-1)
+    if theta.size != 3:
+        raise RobustDrakeError(f"theta (true_theta) must hold the 3 parameters of JS eq. 14 (theta1, theta2, theta3), "
+                               f"got {theta.size}: {theta.tolist()}")
+    th1, th2, th3 = (float(x) for x in theta)
     if not (th1 > 0 and th2 > 0 and th3 * th3 < th1 * th2):
         raise RobustDrakeError(
             f"theta = {[th1, th2, th3]} is not physically realisable for a two-link arm "

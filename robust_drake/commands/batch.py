@@ -115,7 +115,7 @@ def _summary_metric(df, asked: str | None) -> tuple[str, str | None]:
 
     ok = df["status"] == "ok" if "status" in df else None
     joint_cols = [c for c in df.columns if re.fullmatch(r"maxerr\d+", str(c))]
-    if joint_cols:
+    if joint_cols and "maxerr_joints" not in df:  # results written before the column existed
         df["maxerr_joints"] = df[joint_cols].astype(float).max(axis=1)
     metric = asked or "maxerr_task"
     if ok is None or not ok.any() or metric not in df:

@@ -244,7 +244,7 @@ def identified_set(cfg, out_dir):
     if truth_r > 1.0:
         raise RobustDrakeError(f"{cfg.robot}: the true base parameters lie outside the identified "
                                f"{100 * (1 - cfg.alpha):g} % set (radius {truth_r:.3g}); the experiment "
-                               "does not identify this arm (a longer --duration or a lower --noise-fraction "
+                               "does not identify this arm (a longer log duration or a lower noise fraction "
                                "may)")
     return model, theta0, P, reg, truth, truth_r
 
@@ -396,7 +396,7 @@ def verdict(draws, region_info) -> dict:
     if not reasons:
         return {"guaranteed": True, "verdict": "every drawn plant stayed within its bound"}
     return {"guaranteed": False, "verdict": "not shown: " + "; ".join(reasons) + " (the identified set is too "
-            "large for this arm: a longer --duration or a lower --noise-fraction gives a smaller one)"}
+            "large for this arm: a longer log duration or a lower noise fraction gives a smaller one)"}
 
 
 def plot_logs_to_control(out: dict, path) -> str:

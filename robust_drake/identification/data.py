@@ -453,7 +453,7 @@ def _numeric(path: str, df, cols: list[str], names: list[str], lines: np.ndarray
     out = np.empty((len(df), len(idx)))
     for k, i in enumerate(idx):
         col = df.iloc[:, i]
-        if col.dtype == object:
+        if not pd.api.types.is_numeric_dtype(col):  # text in the column (object or string dtype)
             num = pd.to_numeric(col.astype(str).str.strip(), errors="coerce")
             bad = (num.isna() & col.notna() & ~col.astype(str).str.strip().str.lower().isin(["nan", "+nan", "-nan", ""])).to_numpy()
             if bad.any():
@@ -967,8 +967,13 @@ def prepare(
         if segs:
             msgs += _stick_messages(segs, os.path.basename(r.source), joint_names)
         if not segs:
-            raise DataError(f"{r.source}: too short ({len(r.t)} samples) to trim {trim:.3g} s of filter "
-                            "start-up at each end of every segment; record longer or pass a smaller trim")
+            span = float(r.t[-1] - r.t[0]) if len(r.t) > 1 else 0.0
+            why = (f"the filter cut-off {cutoff_hz:g} Hz trims 2 / f_c = {trim:.3g} s of filter start-up at each end of "
+                   f"every segment, and the file lasts {span:.3g} s: raise the cut-off (default {DEFAULT_CUTOFF_HZ:g} Hz)"
+                   if cutoff_hz and trim_s is None and not given and 2 * trim >= span else
+                   f"too short ({len(r.t)} samples) to trim {trim:.3g} s of filter start-up at each end of every "
+                   "segment; record longer or pass a smaller trim")
+            raise DataError(f"{r.source}: {why}")
         fs = (FilterSettings(cutoff_hz=None, order=0, derivatives="given") if given
               else FilterSettings(cutoff_hz=cutoff_hz, order=order,
                                   velocities="logged velocities" if velocities == "logged" else "positions"))

@@ -65,7 +65,7 @@ def check_distinct_files(fit_paths, validate_paths=None) -> None:
                     raise DataError(
                         f"{p} ({role}) and {seen[key]} are {how}: "
                         + ("the validation error would be a fit error; validate on other runs "
-                           "(or leave out --validate to hold out the tail of every fit file)"
+                           "(or give no validation files to hold out the tail of every fit file)"
                            if role == "validation" or "(validation)" in seen[key]
                            else "a fit file given twice counts its samples twice; give each run once")
                     )

@@ -185,6 +185,9 @@ def solve_normal(G: np.ndarray, g: np.ndarray, residual_of, names: list[str], w:
     over joints) and ``residual_of(theta)`` = tau - Y theta (N, n), for callers that hold the
     Gram matrix already (``fitting.ColumnCache.gram``); ``rows`` as in :func:`solve_ls`."""
     n = len(w)
+    if not (np.all(np.isfinite(G)) and np.all(np.isfinite(g))):
+        raise DataError("least squares: the regressor or the torque holds NaN or infinite values (clean the data; "
+                        "nothing is dropped silently)")
     cond, rank, unident, _ = identifiability(None, names, tol, G=G)
     theta, cov0, keep, s, V, scale = solve_gram(G, g, tol)
     resid = residual_of(theta)

@@ -118,7 +118,7 @@ def load_inputs(fit_paths, validate_paths, opts, log) -> Inputs:
         fit = data
     else:
         fit, val = split_tail(data)
-        notes.append(f"no --validate given: the last {HOLDOUT_FRACTION:.0%} of every fit file is "
+        notes.append(f"no validation files given: the last {HOLDOUT_FRACTION:.0%} of every fit file is "
                      "held out (contiguous tail) as validation data")
     log(f"data: fit {fit.N} samples ({len(fit.sources)} files), validate {val.N} samples")
     exclude = friction_exclusion(fit)  # stiction: those rows of the stuck joint's equation are left out
