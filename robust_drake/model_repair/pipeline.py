@@ -108,7 +108,8 @@ class RepairOptions:
         self.min_gain = _number("min_gain", self.min_gain, "a relative gain (0.05 = 5 %)")
         self.max_effects = _whole("max_effects", self.max_effects)
         self.sigma_rel = _number("sigma_rel", self.sigma_rel, "a relative trust", positive=True)
-        self.never_worse_tol = _number("never_worse_tol", self.never_worse_tol, "a relative tolerance")
+        self.never_worse_tol = _number("never_worse_tol", self.never_worse_tol, "a relative tolerance",
+                                       allow_inf=True)  # inf: the never-worse rule switched off
         self.replay_horizon = _number("replay_horizon", self.replay_horizon, "a horizon in s", positive=True)
         self.replay_windows = _whole("replay_windows", self.replay_windows, minimum=1)
         for name in ("consistent", "replay", "plots", "weighted", "instruments", "nominal"):
@@ -124,8 +125,9 @@ CLI_FLAGS = {"robot": "--robot", "torque": "--torque", "cutoff_hz": "--cutoff", 
              "overwrite": "--force"}
 
 
-def _number(name: str, value, what: str, positive: bool = False) -> float:
-    """``value`` as a finite float >= 0 (> 0 with ``positive``), else OptionError naming ``name``."""
+def _number(name: str, value, what: str, positive: bool = False, allow_inf: bool = False) -> float:
+    """``value`` as a finite float >= 0 (> 0 with ``positive``; +inf too with ``allow_inf``), else
+    OptionError naming ``name``."""
     import math
 
     from robust_drake.errors import OptionError
@@ -133,7 +135,8 @@ def _number(name: str, value, what: str, positive: bool = False) -> float:
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
         raise OptionError(name, f"must be a number ({what}), got {value!r}")
     value = float(value)
-    if not math.isfinite(value) or value < 0 or (positive and value == 0):
+    if math.isnan(value) or (math.isinf(value) and not (allow_inf and value > 0)) or value < 0 \
+            or (positive and value == 0):
         raise OptionError(name, f"must be {'> 0' if positive else '>= 0'} and finite, got {value!r}")
     return value
 
