@@ -224,8 +224,6 @@ def repair(fit: str | Sequence[str], robot: str, *, validate: str | Sequence[str
                              max_effects=max_effects, consistent=consistent, replay=replay,
                              plots=plots, nominal=nominal, instruments=instruments,
                              **({} if sigma_rel is None else {"sigma_rel": sigma_rel}))
-        if progress is not None and not callable(progress):
-            raise OptionError("progress", f"must be a callable progress(message) or None, got {progress!r}")
         return run_repair(fit, opts, validate_paths=validate, out_dir=out,
                           progress=progress_callback(progress), overwrite=overwrite)
     except OptionError as exc:

@@ -68,14 +68,11 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from robust_drake.errors import RobustDrakeError
+    from robust_drake.errors import OptionError, RobustDrakeError
     from robust_drake.identification.data import DEFAULT_CUTOFF_HZ
-    from robust_drake.model_repair.pipeline import RepairOptions, run_repair
+    from robust_drake.model_repair.pipeline import CLI_FLAGS, RepairOptions, run_repair
     from robust_drake.model_repair.report import signal
     from robust_drake.model_repair.selection import MIN_GAIN
-
-    from robust_drake.errors import OptionError
-    from robust_drake.model_repair.pipeline import CLI_FLAGS
 
     try:  # one validation for the command line and rd.repair (RepairOptions.validate)
         opts = RepairOptions(
