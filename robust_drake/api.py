@@ -262,8 +262,9 @@ def repair(fit: Any, robot: str, *, validate: Any = None,
         DFKI torque column, ``"tau_meas"`` or ``"tau_con"`` (ignored for canonical CSVs).
     cutoff_hz : float, optional
         Zero-phase low-pass cut-off for q and tau [Hz]; None uses the default (8 Hz).
-    effects : sequence of str, optional
-        Candidate effect kinds to consider (None: the whole library).
+    effects : sequence of str or str, optional
+        Candidate effect kinds to consider, a list or one comma-separated string as the command
+        line's ``--effects`` (None: the whole library; an empty string is refused).
     min_gain : float, optional
         Minimum relative held-out error reduction to accept an effect (None: 0.05).
     max_effects : int
@@ -298,18 +299,21 @@ def repair(fit: Any, robot: str, *, validate: Any = None,
     from robust_drake.model_repair.pipeline import RepairOptions
     from robust_drake.model_repair.selection import MIN_GAIN
 
-    opts = RepairOptions(robot=robot, torque=torque,
-                         cutoff_hz=DEFAULT_CUTOFF_HZ if cutoff_hz is None else cutoff_hz,
-                         kinds=None if effects is None else list(effects),
-                         min_gain=MIN_GAIN if min_gain is None else min_gain,
-                         max_effects=max_effects, consistent=consistent, replay=replay,
-                         plots=plots, nominal=nominal, instruments=instruments)
-    if sigma_rel is not None:
-        if not sigma_rel > 0:
-            raise RobustDrakeError(f"sigma_rel must be > 0, got {sigma_rel}")
-        opts.sigma_rel = sigma_rel
-    return _repair_logs(fit, validate, opts, None if out is None else str(out), progress,
-                        overwrite)  # None: logger + stage bar
+    from robust_drake.errors import OptionError
+    from robust_drake.log import progress_callback
+
+    try:  # the command line's validation (RepairOptions.validate, pipeline.run_repair): one set of rules
+        opts = RepairOptions(robot=robot, torque=torque,
+                             cutoff_hz=DEFAULT_CUTOFF_HZ if cutoff_hz is None else cutoff_hz,
+                             kinds=effects, min_gain=MIN_GAIN if min_gain is None else min_gain,
+                             max_effects=max_effects, consistent=consistent, replay=replay,
+                             plots=plots, nominal=nominal, instruments=instruments,
+                             **({} if sigma_rel is None else {"sigma_rel": sigma_rel}))
+        return _repair_logs(fit, validate, opts, out, progress_callback(progress), overwrite)
+    except OptionError as exc:
+        if exc.option == "kinds":  # the API's keyword for RepairOptions.kinds
+            raise OptionError("effects", exc.text) from None
+        raise
 
 
 def _repair_logs(fit, validate, opts, out, progress, overwrite) -> "RepairResult":
@@ -324,7 +328,7 @@ def _repair_logs(fit, validate, opts, out, progress, overwrite) -> "RepairResult
         else:
             with as_log_files(validate, None, "repair (validate)") as vals:
                 rep = run_repair(fits, opts, validate_paths=vals, out_dir=out, progress=progress, overwrite=overwrite)
-    return RepairResult(rep, out)
+    return RepairResult(rep, None if out is None else str(out))
 
 
 def ellipsoid(data: Mapping[str, "np.ndarray"] | None = None, *, samples: int = 5,
@@ -354,7 +358,7 @@ def ellipsoid(data: Mapping[str, "np.ndarray"] | None = None, *, samples: int = 
     formulation : str
         ``"chordal"`` SDP, ``"full"`` dense SDP, ``"energy"`` closed-form bound, or ``"auto"``.
     draws : int
-        Delta draws for the sampling certificate (0 skips it).
+        Delta draws for the sampling certificate (>= 1: every ellipsoid is certified).
     seed : int
         Random seed of the simulated experiment and the certificate.
 
@@ -368,7 +372,15 @@ def ellipsoid(data: Mapping[str, "np.ndarray"] | None = None, *, samples: int = 
 
     from robust_drake.experiments.calafiore import run_ellipsoid_experiment
 
+    for name, value, low in (("samples", samples, 1), ("draws", draws, 1), ("seed", seed, 0)):
+        if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < low:
+            raise RobustDrakeError(f"ellipsoid: {name} must be a whole number >= {low}, got {value!r}")
+    for name, value in (("solver", solver), ("backend", backend), ("formulation", formulation)):
+        if not isinstance(value, str):
+            raise RobustDrakeError(f"ellipsoid: {name} must be a name (str), got {value!r}")
     if data is not None:
+        if not isinstance(data, Mapping):
+            raise RobustDrakeError(f"ellipsoid: data must be a mapping of arrays (q, qd, qdd, tau), got {type(data).__name__}")
         missing = [k for k in ("q", "qd", "qdd", "tau") if k not in data]
         if missing:
             raise RobustDrakeError(f"ellipsoid: data lacks {missing} (need q, qd, qdd, tau)")

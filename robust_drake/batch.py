@@ -31,8 +31,10 @@ import json
 import math
 import os
 import pathlib
+import re
 import shutil
 import socket
+import sys
 import time
 import uuid
 from collections import OrderedDict
@@ -131,12 +133,16 @@ def run_scenario(scenario: Scenario | dict, *, reuse: bool = True,
         loop.config.divergence_error = float(divergence_error)
         res = loop.simulate(None if scenario.duration is None else float(scenario.duration))
         row.update({k: float(res.metrics.get(k, math.nan)) for k in METRIC_KEYS})
+        joints = {k: float(v) for k, v in res.metrics.items() if re.fullmatch(r"(max)?err(or)?\d+", k)}
+        row.update(joints)  # every joint's criteria (METRIC_KEYS name the 2-link ones)
+        maxerrs = [v for k, v in joints.items() if k.startswith("maxerr")]
+        row["maxerr_joints"] = max(maxerrs) if maxerrs else math.nan  # defined on every arm [rad]
         row.update(_torque_columns(res.torque_stats or {}))
         row["sim_seconds"] = float(res.sim_seconds)
         if res.diverged:  # robust_drake.divergence.is_diverged, applied by ClosedLoop.simulate
             row["status"] = "diverged"
             row["error"] = f"diverged: {res.divergence_reason}"
-            row.update({k: math.nan for k in METRIC_KEYS})  # never in percentiles
+            row.update({k: math.nan for k in row if k in METRIC_KEYS or re.fullmatch(r"(max)?err(or)?\d+|maxerr_joints", k)})  # never in percentiles
         else:
             row["status"] = "ok"
     except Exception as exc:  # noqa: BLE001 - recorded in the row, the batch continues
@@ -220,7 +226,7 @@ class BatchLock:
                     os.close(fd)
                 raise RobustDrakeError(
                     f"{results_path} is in use by another batch run (PID {other}, lock "
-                    f"{self.path}); wait for it to finish or choose another --out") from None
+                    f"{self.path}); wait for it to finish or choose another results file (out)") from None
             # The holder before us may have unlinked the file after we opened it: lock again
             # on the file that is now at the path.
             try:
@@ -363,8 +369,12 @@ def _write_parquet(df, path: pathlib.Path, metadata: dict) -> None:
     meta.update(metadata)
     table = table.replace_schema_metadata(meta)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    pq.write_table(table, tmp)
-    os.replace(tmp, path)
+    try:
+        pq.write_table(table, tmp)
+        os.replace(tmp, path)
+    except BaseException:  # disk full, ulimit -f: no torn temporary file left beside the results
+        tmp.unlink(missing_ok=True)
+        raise
 
 
 def _file_fingerprint(path: pathlib.Path) -> str | None:
@@ -486,18 +496,20 @@ def run_batch(
     options = {"reuse": reuse, "divergence_error": float(divergence_error)}
     new_rows: dict[str, dict] = {}
     t0 = time.perf_counter()
-    interrupted = False
     try:
         if todo:
             _run_todo(todo, options, new_rows, store, workers=workers, scheduler=scheduler,
                       progress=progress, flush_seconds=flush_seconds, on_row=on_row)
-    except KeyboardInterrupt:
-        interrupted = True
-        raise
     finally:
         if store is not None:
-            try:
-                store.flush(final=not interrupted and len(new_rows) == len(todo))
+            pending = sys.exc_info()[1]  # an error already on its way out, if any
+            try:  # every finished row goes into <out>; the parts are removed only once it holds them
+                store.flush(final=True)
+            except OSError:
+                if pending is None:
+                    raise
+                # an error is already on its way (e.g. the disk filled up while writing a part): the
+                # parts stay for the next run, which resumes from them
             finally:
                 store.close()
     rows = []

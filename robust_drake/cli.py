@@ -309,19 +309,74 @@ def main(argv: list[str] | None = None) -> int:
     from robust_drake.errors import set_caller
 
     token = set_caller("cli")  # messages name --force, --out (not overwrite=True, out=)
+    import logging
+
+    # the command's own handler prints the package's messages; pydrake installs a root handler the
+    # first time Drake logs, after which every line appeared twice ("INFO:robust_drake:...")
+    package_logger = logging.getLogger("robust_drake")
+    propagate, package_logger.propagate = package_logger.propagate, False
+    previous_term = _catch_sigterm()
     try:
         status = args.func(args)
     except RobustDrakeError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    except Terminated:
+        print("terminated", file=sys.stderr)
+        return 143
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
+    except OSError as exc:
+        message = disk_error_message(exc)
+        if message is None:
+            raise
+        print(f"error: {message}", file=sys.stderr)
+        return 2
     finally:
         from robust_drake.errors import _CALLER
 
         _CALLER.reset(token)
+        package_logger.propagate = propagate
+        if previous_term is not None:
+            import signal
+
+            signal.signal(signal.SIGTERM, previous_term)
     return int(status or 0)
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised in the main thread so that a command cleans up as after Ctrl-C (workers
+    stopped, finished batch rows saved, temporary folders removed; no leaked semaphores)."""
+
+
+def _catch_sigterm():
+    """Turn SIGTERM into :class:`Terminated` while a command runs; returns the previous handler
+    (None when not in the main thread, where signals cannot be set)."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        return None
+
+    def handler(signum, frame):
+        raise Terminated()
+
+    return signal.signal(signal.SIGTERM, handler)
+
+
+def disk_error_message(exc: OSError) -> str | None:
+    """One line for a write that failed for lack of room (ENOSPC: disk full; EFBIG: the file-size
+    limit of ``ulimit -f``; EDQUOT: quota), naming the file; None for other OS errors."""
+    import errno
+
+    if exc.errno not in (errno.ENOSPC, errno.EFBIG, errno.EDQUOT):
+        return None
+    where = f" writing {exc.filename}" if exc.filename else ""
+    why = {errno.ENOSPC: "disk full", errno.EFBIG: "file too large for the file-size limit (ulimit -f)",
+           errno.EDQUOT: "disk quota exceeded"}[exc.errno]
+    return (f"{why}{where}: free some space (or raise the limit) and run again; an earlier result in the "
+            "output place is left as it was")
 
 
 if __name__ == "__main__":  # pragma: no cover

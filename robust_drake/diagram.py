@@ -58,6 +58,9 @@ DIVERGENCE_LIMIT = STATE_LIMIT  # |q| [rad] or |v| [rad/s]; see robust_drake.div
 #: Logged samples per logger of one run (one per controller tick): ~150 B each for the
 #: 2-joint arm, so 2e6 samples (800 s at 2500 Hz) keep the logs near 300 MB.
 MAX_LOG_SAMPLES = 2_000_000
+#: fewest controller ticks a run may have (check_run_size): with fewer the metrics are NaN and
+#: "not diverged" would say nothing
+MIN_TICKS = 10
 #: Fixed RK2 steps of one run (several per tick at low rates; ~ an hour of wall time).
 MAX_INTEGRATOR_STEPS = 50_000_000
 
@@ -67,6 +70,10 @@ def check_run_size(duration: float, rate: float) -> None:
     :data:`MAX_LOG_SAMPLES` or whose integrator steps exceed :data:`MAX_INTEGRATOR_STEPS`,
     before anything is allocated (``duration`` [s], ``rate`` [Hz])."""
     ticks = float(duration) * float(rate)
+    if not ticks >= MIN_TICKS:
+        raise RobustDrakeError(
+            f"{duration:g} s at {rate:g} Hz is {ticks:.3g} controller tick(s): a run needs at least {MIN_TICKS} "
+            "(its error criteria and divergence test come from the ticks); lengthen the duration or raise the rate")
     if ticks + 1 > MAX_LOG_SAMPLES:
         raise RobustDrakeError(
             f"{duration:g} s at {rate:g} Hz is {ticks:.3g} controller ticks, each logged: more "
@@ -81,6 +88,35 @@ def check_run_size(duration: float, rate: float) -> None:
             f"{MAX_INTEGRATOR_STEP * 1e3:g} ms each): more than the limit of "
             f"{MAX_INTEGRATOR_STEPS:.3g} (robust_drake.diagram.MAX_INTEGRATOR_STEPS); "
             "shorten the duration")
+
+#: runs of at least this many controller ticks advance in PROGRESS_CHUNKS pieces (at whole
+#: ticks) and log the share done with an estimate of the time left once PROGRESS_AFTER_S passed
+PROGRESS_TICKS = 100_000
+PROGRESS_CHUNKS = 20
+PROGRESS_AFTER_S = 2.0
+
+
+def _advance_with_progress(simulator, duration: float, period: float) -> None:
+    """``simulator.AdvanceTo(duration)``; a long run (>= PROGRESS_TICKS ticks) goes in pieces that
+    end on controller ticks and logs "simulating: 35 % (1260 of 3600 s), 40 s elapsed, about 74 s
+    left" (INFO, logger robust_drake) when it has already taken PROGRESS_AFTER_S."""
+    ticks = int(round(duration / period))
+    if ticks < PROGRESS_TICKS:
+        simulator.AdvanceTo(duration)
+        return
+    from robust_drake.log import get_logger
+
+    log = get_logger()
+    t0 = time.perf_counter()
+    for k in range(1, PROGRESS_CHUNKS + 1):
+        t_end = duration if k == PROGRESS_CHUNKS else (ticks * k // PROGRESS_CHUNKS) * period
+        simulator.AdvanceTo(t_end)
+        wall = time.perf_counter() - t0
+        if wall >= PROGRESS_AFTER_S and k < PROGRESS_CHUNKS:
+            left = wall * (duration - t_end) / t_end
+            log.info("simulating: %.0f %% (%.4g of %.4g s), %.0f s elapsed, about %.0f s left",
+                     100.0 * t_end / duration, t_end, duration, wall, left)
+
 
 class _RobotDefault:
     """The marker of a field filled from the robot's description (:meth:`ClosedLoopConfig.resolved`)."""
@@ -944,7 +980,7 @@ class ClosedLoop:
         integrator_error = None
         try:
             simulator.Initialize()
-            simulator.AdvanceTo(duration)
+            _advance_with_progress(simulator, duration, self.period)
         except RuntimeError as exc:  # e.g. the integrator gave up on a blown-up state
             text = str(exc).strip().splitlines()
             integrator_error = text[0] if text else type(exc).__name__

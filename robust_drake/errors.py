@@ -49,3 +49,16 @@ def did_you_mean(word: str, choices, n: int = 3) -> str:
     if not close:
         return ""
     return " (did you mean " + " or ".join(repr(c) for c in close) + "?)"
+
+class OptionError(RobustDrakeError):
+    """A bad value of a named option (a keyword of the Python API, a flag of the command line).
+
+    The message is ``"<option> <text>"`` with the API's keyword; the command line prints the same
+    text after its own flag (:meth:`as_flag`), so neither names the other's spelling."""
+
+    def __init__(self, option: str, text: str):
+        self.option, self.text = option, text
+        super().__init__(f"{option} {text}")
+
+    def as_flag(self, flag: str) -> str:
+        return f"{flag} {self.text}"

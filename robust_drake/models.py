@@ -243,22 +243,108 @@ def _root_bodies(plant, instances):
             if b.index() not in children]
 
 
-def _weld_roots(plant, instances, path, floating_base: bool) -> None:
+def _urdf_parent_joint(path, link: str):
+    """(name, type, parent) of the URDF joint whose child is ``link``, read from the file itself
+    (Drake drops a ``floating`` joint with a warning and keeps no trace of it); None when the
+    file has none or is not a readable URDF."""
+    import xml.etree.ElementTree as ET
+
+    if not str(path).endswith(".urdf"):
+        return None
+    try:
+        root = ET.parse(str(path)).getroot()
+    except (ET.ParseError, OSError):
+        return None
+    for j in root.iter("joint"):
+        child = j.find("child")
+        if child is not None and child.get("link") == link:
+            parent = j.find("parent")
+            return j.get("name", "?"), j.get("type", "?"), None if parent is None else parent.get("link")
+    return None
+
+
+def _refuse_mimic(path) -> None:
+    """RobustDrakeError naming a ``<mimic>`` joint: Drake turns it into a coupler constraint, which
+    a continuous-time plant does not support, and its column would count as a joint of its own."""
+    import xml.etree.ElementTree as ET
+
+    if not str(path).endswith(".urdf"):
+        return
+    try:
+        root = ET.parse(str(path)).getroot()
+    except (ET.ParseError, OSError):
+        return
+    for j in root.iter("joint"):
+        m = j.find("mimic")
+        if m is not None:
+            raise RobustDrakeError(
+                f"{path}: joint {j.get('name')!r} mimics joint {m.get('joint')!r} (a coupled joint, q = "
+                f"{m.get('multiplier', '1')} q_{m.get('joint')} + {m.get('offset', '0')}): coupled joints are not supported "
+                "(a continuous-time plant has no coupler constraints, and a log has no column for it); make it a "
+                "joint of its own or weld it (type=\"fixed\")")
+
+
+def _weld_roots(plant, instances, path, floating_base: bool):
     """Weld the model's root link to the world (a URDF without a world joint), unless a floating
-    base is asked for.  More than one root (a ``floating`` URDF joint leaves a free body, or
-    disconnected links) is refused: which body is the base would be a guess."""
+    base is asked for; returns the welded root body (None if nothing was welded).  More than one
+    root (a ``floating`` URDF joint leaves a free body, or disconnected links) is refused: which
+    body is the base would be a guess.  A root whose URDF joint to the world is ``floating`` is
+    refused too (Drake drops such a joint, and with it the base's pose: welding at the identity
+    would silently turn gravity), unless ``floating_base``."""
     roots = _root_bodies(plant, instances)
     if floating_base or not roots:
-        return
+        return None
     if len(roots) > 1:
         raise RobustDrakeError(
             f"{path}: links {', '.join(repr(b.name()) for b in roots)} have no joint to a parent "
             "(a 'floating' joint or disconnected links); an arm needs one tree rooted at its base")
+    joint = _urdf_parent_joint(path, roots[0].name())
+    if joint is not None and joint[1] == "floating":
+        raise RobustDrakeError(
+            f"{path}: joint {joint[0]!r} attaches the root link {roots[0].name()!r} to {joint[2]!r} as a "
+            "'floating' joint (a free-flying base; Drake drops it and its origin): a fixed-base arm needs "
+            "the base welded; change its type to \"fixed\" (its origin xyz/rpy, hence the direction of "
+            "gravity, is then kept), or ask for a floating base (floating_base=True)")
     plant.WeldFrames(plant.world_frame(), roots[0].body_frame())
-    if str(path) not in _WELD_REPORTED:
-        _WELD_REPORTED.add(str(path))
-        _log.warning("%s: root link %r has no joint to the world; welded to it "
-                     "(make_plant(..., floating_base=True) for a floating base)", path, roots[0].name())
+    return roots[0]
+
+
+def gravity_reaches_joints(plant, samples: int = 8, seed: int = 0) -> bool:
+    """True when gravity produces a joint torque somewhere (``CalcGravityGeneralizedForces`` at
+    ``samples`` random configurations in [-pi, pi]); False for an arm whose every joint axis is
+    vertical (a horizontal arm, or a vertical one welded with the wrong base pose)."""
+    ctx = plant.CreateDefaultContext()
+    rng = np.random.default_rng(seed)
+    from pydrake.multibody.tree import BodyIndex
+
+    masses = [plant.get_body(BodyIndex(b)).default_mass() for b in range(1, plant.num_bodies())]
+    mass = sum(m for m in masses if np.isfinite(m))
+    tol = 1e-9 * 9.81 * max(mass, 1.0)
+    for _ in range(samples):
+        plant.SetPositions(ctx, rng.uniform(-np.pi, np.pi, plant.num_positions()))
+        if np.abs(plant.CalcGravityGeneralizedForces(ctx)).max() > tol:
+            return True
+    return False
+
+
+def root_weld_warning(robot, plant=None) -> str | None:
+    """The message for a URDF whose root link has no joint to the world (it is welded at the
+    identity pose, the ROS/Pinocchio convention): None when the file has a world joint. With the
+    finalized ``plant``, says whether gravity then reaches any joint (if not, a vertical arm whose
+    world joint was left out is being modelled in a horizontal plane). Shown on the console by
+    the loader and put into the repair's report.json / report.md warnings."""
+    from robust_drake.identification.input_checks import urdf_root_links
+
+    path = resolve_urdf(robot) if not isinstance(robot, pathlib.Path) else robot
+    roots = urdf_root_links(path)
+    if len(roots) != 1:
+        return None
+    msg = (f"{path}: root link {roots[0]!r} has no joint to the world; welded to it at the identity pose "
+           "(base frame = world frame, gravity along the base's -z)")
+    if plant is not None and plant.num_positions() and not gravity_reaches_joints(plant):
+        msg += ("; gravity then produces NO torque on any joint: if the arm moves in a vertical plane, the "
+                "URDF's world joint (with the base's rpy) is missing, add it as a \"fixed\" joint")
+    return msg
 
 
 def _check_joints(plant, path, floating_base: bool) -> None:
@@ -279,13 +365,18 @@ def _populate(plant, robot, load, time_step, before_finalize, floating_base,
               use_sampled_output_ports):
     """The one loading sequence: parse, hook, weld the root, finalize, check the joints."""
     path, instances = _parse_into(plant, robot, load)
+    _refuse_mimic(path)
     if before_finalize is not None:
         before_finalize(plant)
-    _weld_roots(plant, instances, path, floating_base)
+    welded = _weld_roots(plant, instances, path, floating_base)
     if time_step > 0 and not use_sampled_output_ports:
         plant.SetUseSampledOutputPorts(False)
     plant.Finalize()
     _check_joints(plant, path, floating_base)
+    if welded is not None and str(path) not in _WELD_REPORTED:
+        _WELD_REPORTED.add(str(path))
+        _log.warning("%s (make_plant(..., floating_base=True) for a floating base)",
+                     root_weld_warning(path, plant) or f"{path}: root link {welded.name()!r} welded to the world")
     return plant
 
 
@@ -400,7 +491,11 @@ def set_d2r2_theta(plant, context, theta) -> None:
     from pydrake.multibody.tree import RotationalInertia, SpatialInertia
 
     _check_two_link(plant)
-    th1, th2, th3 = (float(x) for x in np.asarray(theta, dtype=float).reshape(3))
+    theta = np.asarray(theta, dtype=float).reshape(-1)
+    if theta.size != 3:
+        raise RobustDrakeError(f"theta (true_theta) must hold the 3 parameters of JS eq. 14 (theta1, theta2, theta3), "
+                               f"got {theta.size}: {theta.tolist()}")
+    th1, th2, th3 = (float(x) for x in theta)
     if not (th1 > 0 and th2 > 0 and th3 * th3 < th1 * th2):
         raise RobustDrakeError(
             f"theta = {[th1, th2, th3]} is not physically realisable for a two-link arm "

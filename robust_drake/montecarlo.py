@@ -93,7 +93,7 @@ def draw_d2r2(draws: int, seed: int = 0, corners: bool = False):
     from robust_drake.models import D2R2_LOAD_INTERVALS
 
     if draws < 0:
-        raise RobustDrakeError("--draws must be >= 0")
+        raise RobustDrakeError(f"draws must be >= 0 (got {draws})")
     lo = np.array([D2R2_LOAD_INTERVALS[k][0] for k in ("dm2", "dlc2", "dI2")])
     hi = np.array([D2R2_LOAD_INTERVALS[k][1] for k in ("dm2", "dlc2", "dI2")])
     rng = np.random.default_rng(seed)

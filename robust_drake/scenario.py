@@ -169,6 +169,7 @@ class Scenario:
         if unknown:
             raise RobustDrakeError(
                 f"unknown scenario field(s) {sorted(unknown)}; known: {sorted(known)}")
+        _check_field_types(d)
         return cls(**d)
 
     # ------------------------------------------------------------------ to the builder
@@ -209,6 +210,35 @@ class Scenario:
         d["extra"] = {k: v for k, v in d["extra"].items()
                       if k not in ("initial_q", "metrics_skip", "metrics_dt", "plant_setup")}
         return json.dumps(d, sort_keys=True, separators=(",", ":"))
+
+
+def _is_number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _check_field_types(d: dict) -> None:
+    """RobustDrakeError (one line naming the field) for a value of the wrong kind: a text where a
+    number belongs (``rates: ['fast']``), a non-positive rate or duration, a non-whole seed."""
+    for key in ("robot", "load", "controller", "trajectory", "observer"):
+        if key in d and not isinstance(d[key], str):
+            raise RobustDrakeError(f"scenario field {key!r} must be a name, got {d[key]!r}")
+    if "rate" in d and not (_is_number(d["rate"]) and d["rate"] > 0):
+        raise RobustDrakeError(f"scenario field 'rate' must be a number > 0 [Hz], got {d['rate']!r}")
+    if d.get("duration") is not None and not (_is_number(d["duration"]) and d["duration"] > 0):
+        raise RobustDrakeError(f"scenario field 'duration' must be a number > 0 [s] or null, got {d['duration']!r}")
+    for key in ("seed", "draw"):
+        v = d.get(key)
+        if v is not None and not (_is_number(v) and float(v) == int(v)):
+            raise RobustDrakeError(f"scenario field {key!r} must be a whole number, got {v!r}")
+    for key in ("friction", "friction_compensation"):
+        if key in d and not isinstance(d[key], bool):
+            raise RobustDrakeError(f"scenario field {key!r} must be true or false, got {d[key]!r}")
+    for key in ("controller_params", "trajectory_params", "observer_params", "tags", "extra"):
+        if key in d and not isinstance(d[key], dict):
+            raise RobustDrakeError(f"scenario field {key!r} must be a mapping, got {d[key]!r}")
+    if d.get("true_theta") is not None and not (isinstance(d["true_theta"], (list, tuple))
+                                                and all(_is_number(x) for x in d["true_theta"])):
+        raise RobustDrakeError(f"scenario field 'true_theta' must be a list of numbers, got {d['true_theta']!r}")
 
 
 def config_only_fields() -> set:
@@ -303,6 +333,28 @@ def _choice_entries(field_name: str, value) -> list[dict]:
     return out
 
 
+#: most scenarios one spec may expand to (each is at least one closed-loop simulation: 1e5 runs
+#: of ~1 s are over a day of CPU on one core); :func:`count_product` refuses more before expanding
+MAX_SCENARIOS = 100_000
+
+
+def count_product(spec: dict) -> int:
+    """Number of scenarios the product keys of ``spec`` multiply to, counted from the lists'
+    lengths without building anything; RobustDrakeError above :data:`MAX_SCENARIOS`."""
+    sizes = []
+    for key, value in spec.items():
+        field_name = PRODUCT_KEYS.get(key) or _SINGULAR_OF.get(key)
+        if field_name is not None:
+            sizes.append((key, len(value) if isinstance(value, (list, tuple, dict)) else 1))
+    total = math.prod(n for _, n in sizes)
+    if total > MAX_SCENARIOS:
+        raise RobustDrakeError(
+            f"spec: the product of its lists is {total:,} scenarios ({' x '.join(f'{n} {k}' for k, n in sizes if n > 1)}): "
+            f"more than the limit of {MAX_SCENARIOS:,} (robust_drake.scenario.MAX_SCENARIOS); split the spec "
+            "into smaller batches or use the list form")
+    return total
+
+
 def expand_product(spec: dict) -> list[Scenario]:
     """Expand a product spec (see the module docstring) into scenarios, in a stable order.
 
@@ -313,6 +365,7 @@ def expand_product(spec: dict) -> list[Scenario]:
     """
     spec = dict(spec)
     spec.pop("scenarios", None)
+    count_product(spec)  # refuse a huge product before building anything
     axes: list[list[dict]] = []
     defaults: dict = {}
     scenario_fields = {f.name for f in fields(Scenario)}
@@ -429,6 +482,45 @@ def _number_or_text(text):
             return text
 
 
+def _unique_keys(pairs):
+    """json object_pairs_hook: a key given twice is refused (json keeps the last silently)."""
+    out = {}
+    for k, v in pairs:
+        if k in out:
+            raise RobustDrakeError(f"key {k!r} appears twice in one mapping; only one would be used")
+        out[k] = v
+    return out
+
+
+def yaml_load(text: str):
+    """YAML as a batch spec reads it: safe types only; a key repeated in one mapping is refused
+    (naming both lines), and numbers in exponent form without a dot or exponent sign (``2.5e3``,
+    ``5e-1``, ``1e6``; YAML 1.1 reads them as strings, YAML 1.2 as numbers) are numbers."""
+    import re
+
+    import yaml
+
+    class _SpecLoader(yaml.SafeLoader):
+        pass
+
+    def mapping(loader, node, deep=False):
+        seen = {}
+        for key_node, _ in node.value:
+            key = loader.construct_object(key_node, deep=True)
+            line = key_node.start_mark.line + 1
+            if key in seen:
+                raise RobustDrakeError(f"line {line}: key {key!r} appears twice in one mapping (first at line "
+                                       f"{seen[key]}); YAML would keep only the last: remove or merge one")
+            seen[key] = line
+        return yaml.SafeLoader.construct_mapping(loader, node, deep=deep)
+
+    _SpecLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, mapping)
+    _SpecLoader.add_implicit_resolver(
+        "tag:yaml.org,2002:float", re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
+        list("-+0123456789."))
+    return yaml.load(text, Loader=_SpecLoader)  # noqa: S506 - a SafeLoader subclass
+
+
 def load_spec(path: str | os.PathLike) -> tuple[list[Scenario], dict]:
     """Read a YAML or CSV batch spec. Returns ``(scenarios, spec_document)``.
 
@@ -436,15 +528,27 @@ def load_spec(path: str | os.PathLike) -> tuple[list[Scenario], dict]:
     Duplicate scenarios (same id) are kept once.
     """
     path = pathlib.Path(path)
-    if not path.is_file():
+    if not path.exists():
         raise RobustDrakeError(f"spec file {path} does not exist")
-    text = path.read_text()
+    if path.is_dir():
+        raise RobustDrakeError(f"spec file {path} is a folder")
+    try:
+        blob = path.read_bytes()  # read once: a FIFO or process substitution works too
+    except OSError as exc:
+        raise RobustDrakeError(f"cannot read spec file {path}: {exc.strerror or exc}") from None
+    try:
+        text = blob.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        raise RobustDrakeError(f"{path}: not a text file (binary content, not UTF-8); a batch spec is "
+                               "YAML, JSON or CSV text") from None
+    if "\x00" in text:
+        raise RobustDrakeError(f"{path}: binary content (NUL bytes); a batch spec is YAML, JSON or CSV text")
     suffix = path.suffix.lower()
     if suffix in (".yaml", ".yml", ".json"):
-        import yaml
-
         try:
-            doc = yaml.safe_load(text) if suffix != ".json" else json.loads(text)
+            doc = yaml_load(text) if suffix != ".json" else json.loads(text, object_pairs_hook=_unique_keys)
+        except RobustDrakeError as exc:
+            raise RobustDrakeError(f"{path}: {exc}") from None
         except Exception as exc:
             raise RobustDrakeError(f"cannot parse {path}: {exc}") from None
         if doc is None:

@@ -116,7 +116,15 @@ def run(args) -> int:
                      s["rho_peak"], s["rho_rms"], *[f"{x:.3g}" for x in s["error_max"]]])
     print(format_table(rows, ["case", "beta0", "beta1", "beta2", "|w1|_2", "|w2|_2", "rho_peak", "rho_rms",
                               "emax1 rad", "emax2 rad"]))
-    print(f"energy of w, Case B vs Case A: {100 * study['w_energy_reduction_B_vs_A']:.1f} % lower (paper: 11 %)")
+    for case in ("A", "B"):
+        if study[case]["diverged"]:
+            reason = study[case].get("divergence_reason")
+            print(f"Case {case} DIVERGED{f' ({reason})' if reason else ''}: its errors and energies above are those of "
+                  "a blown-up run; lower the gains or shorten the sample period")
+    if diverged:
+        print("energy of w, Case B vs Case A: not compared (a diverged case has no meaningful energy; paper: 11 %)")
+    else:
+        print(f"energy of w, Case B vs Case A: {100 * study['w_energy_reduction_B_vs_A']:.1f} % lower (paper: 11 %)")
     if "constant_rho" in study:
         c = study["constant_rho"]
         print(f"constant rho (section II-C, ||e|| <= E_M = {c['E_M']:g}): rho = {c['rho_constant']:.4g}, "

@@ -33,8 +33,9 @@ def register(sub):
     p.add_argument("--no-progress", action="store_true", help="no progress bar (as -q)")
     p.add_argument("--no-reuse", action="store_true",
                    help="build a fresh diagram for every scenario (default: reuse per worker)")
-    p.add_argument("--metric", default="maxerr_task",
-                   help="metric summarised per controller (default maxerr_task)")
+    p.add_argument("--metric", default=None,
+                   help="metric summarised per controller (default maxerr_task; for arms other than planar "
+                        "2-link ones, where it is undefined, maxerr_joints: the largest joint error [rad])")
     add_output_flags(p, plot=None)
     p.set_defaults(func=run)
 
@@ -43,8 +44,8 @@ def run(args) -> int:
     from robust_drake.batch import METRIC_KEYS, run_batch, summarize
     from robust_drake.scenario import load_spec
 
-    if args.metric not in METRIC_KEYS:
-        raise RobustDrakeError(f"--metric must be one of {', '.join(METRIC_KEYS)}")
+    if args.metric is not None and args.metric not in (*METRIC_KEYS, "maxerr_joints"):
+        raise RobustDrakeError(f"--metric must be one of {', '.join(METRIC_KEYS)}, maxerr_joints")
     if args.workers is not None and args.workers < 1:
         raise RobustDrakeError("--workers must be >= 1")
     if not args.out.strip():
@@ -73,13 +74,16 @@ def run(args) -> int:
               "to continue", file=sys.stderr)
         raise
     counts = {s: int((df["status"] == s).sum()) for s in ("ok", "diverged", "failed")}
-    summary = summarize(df, by=("controller",), metric=args.metric)
+    metric, note = _summary_metric(df, args.metric)
+    if note:
+        print(f"note: {note}", file=sys.stderr)
+    summary = summarize(df, by=("controller",), metric=metric)
     if args.json:
         print_json({
             "out": args.out, "fingerprint": df.attrs["fingerprint"], "scenarios": len(df),
             "ran": df.attrs["ran"], "skipped": df.attrs["skipped"],
             "wall_seconds": df.attrs["wall_seconds"], "status_counts": counts,
-            "metric": args.metric,
+            "metric": metric, **({"metric_note": note} if note else {}),
             "summary": [{k: (None if isinstance(v, float) and math.isnan(v) else v)
                          for k, v in r.items()} for r in summary.to_dict("records")],
             "failures": [{"scenario_id": r["scenario_id"], "name": r["name"],
@@ -92,7 +96,7 @@ def run(args) -> int:
               f"already in {args.out}; {df.attrs['wall_seconds']:.1f} s)")
         if len(summary):
             cols = ["controller", "runs", "ok", "diverged", "failed", "p50", "p90", "worst"]
-            print(f"{args.metric} over ok runs:")
+            print(f"{metric} over ok runs:")
             print(format_table([[r[c] for c in cols] for r in summary.to_dict("records")], cols))
         bad = df[df["status"] != "ok"]
         for r in bad.head(10).to_dict("records"):
@@ -100,3 +104,25 @@ def run(args) -> int:
         if len(bad) > 10:
             print(f"  ... {len(bad) - 10} more (see the 'error' column)")
     return 0 if counts["failed"] == 0 else 1
+
+
+def _summary_metric(df, asked: str | None) -> tuple[str, str | None]:
+    """The metric the summary shows and a note: ``maxerr_task`` by default, ``maxerr_joints`` (the
+    largest joint error, added to ``df``) where the task-space criteria are undefined (NaN on every
+    ok run: arms other than planar 2-link ones); a metric asked for that is NaN on every ok run
+    gets a note instead of a table of nan."""
+    import re
+
+    ok = df["status"] == "ok" if "status" in df else None
+    joint_cols = [c for c in df.columns if re.fullmatch(r"maxerr\d+", str(c))]
+    if joint_cols and "maxerr_joints" not in df:  # results written before the column existed
+        df["maxerr_joints"] = df[joint_cols].astype(float).max(axis=1)
+    metric = asked or "maxerr_task"
+    if ok is None or not ok.any() or metric not in df:
+        return metric, None
+    if df.loc[ok, metric].astype(float).notna().any():
+        return metric, None
+    if asked is None and joint_cols:
+        return "maxerr_joints", ("maxerr_task (JS eq. 59) is defined only for planar 2-link arms: the summary shows "
+                                 "maxerr_joints, the largest joint error [rad]")
+    return metric, f"{metric} is undefined (NaN) on every ok run; choose another --metric"

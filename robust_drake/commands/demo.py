@@ -14,6 +14,7 @@ from __future__ import annotations
 import pathlib
 
 from robust_drake.cli import add_output_flags, format_table, print_json
+from robust_drake.errors import RobustDrakeError
 from robust_drake.metrics import METRIC_KEYS
 
 # JS tables 2 (CPT, no load) and 3 (CPT, load), rows SP1 and SP2, columns METRIC_KEYS.
@@ -135,7 +136,14 @@ def _tracking_line(traj: str, gain: float, rows: dict) -> str:
 
 def run(args) -> int:
     out = pathlib.Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    if not str(args.out).strip():
+        raise RobustDrakeError("--out is empty; give the folder for the plots and the repair report")
+    if out.exists() and not out.is_dir():
+        raise RobustDrakeError(f"--out {args.out} is a file, not a folder; choose a folder name")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise RobustDrakeError(f"--out {args.out}: cannot create the folder ({exc.strerror or exc})") from None
     from robust_drake.cli import show_progress
     from robust_drake.log import get_logger
 

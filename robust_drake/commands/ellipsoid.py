@@ -54,17 +54,36 @@ def parse_bounds(text):
 
 
 def _read_csv(path):
+    import io
+    import os
+
     import pandas as pd
 
-    try:
-        df = pd.read_csv(path)
-    except OSError as exc:
-        raise DataError(f"cannot read {path}: {exc}") from exc
+    from robust_drake.identification.data import read_text
+
+    if not os.path.exists(path):
+        raise DataError(f"{path}: no such file")
+    try:  # read once (a pipe works), gzip/Latin-1 as the repair's reader
+        df = pd.read_csv(io.StringIO(read_text(path)), comment="#", skipinitialspace=True)
+    except DataError:
+        raise
+    except Exception as exc:  # pandas raises several types for garbage
+        raise DataError(f"{path}: cannot read as CSV ({str(exc).strip().splitlines()[0]})") from None
+    df.columns = [str(c).strip() for c in df.columns]
     cols = {s: [f"{s}1", f"{s}2"] for s in ("q", "qd", "qdd", "tau")}
     missing = [c for cs in cols.values() for c in cs if c not in df.columns]
     if missing:
         raise DataError(f"{path}: missing columns {missing} (need q1,q2,qd1,qd2,qdd1,qdd2,tau1,tau2)")
-    return {s: df[c].to_numpy(float) for s, c in cols.items()} | {"theta_true": None}
+    need = [c for cs in cols.values() for c in cs]
+    values = df[need].apply(pd.to_numeric, errors="coerce")
+    bad = ~np.isfinite(values.to_numpy(float))
+    if bad.any():
+        r, c = (int(x[0]) for x in np.nonzero(bad))
+        raise DataError(f"{path}: column {need[c]!r} at data row {r + 1} is missing or not a finite number "
+                        f"(read as {str(df[need[c]].iloc[r])!r}; a line with fewer values than the header?)")
+    if len(values) == 0:
+        raise DataError(f"{path}: no data rows")
+    return {s: values[c].to_numpy(float) for s, c in cols.items()} | {"theta_true": None}
 
 
 def check_save_path(path) -> None:

@@ -72,31 +72,24 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from robust_drake.errors import RobustDrakeError
+    from robust_drake.errors import OptionError, RobustDrakeError
     from robust_drake.identification.data import DEFAULT_CUTOFF_HZ
-    from robust_drake.model_repair.effects import EFFECTS
-    from robust_drake.model_repair.pipeline import RepairOptions, run_repair
+    from robust_drake.model_repair.pipeline import CLI_FLAGS, RepairOptions, run_repair
     from robust_drake.model_repair.report import signal
     from robust_drake.model_repair.selection import MIN_GAIN
 
-    kinds = None
-    if args.effects:
-        kinds = [k.strip() for k in args.effects.split(",") if k.strip()]
-        bad = [k for k in kinds if k not in EFFECTS]
-        if bad:
-            raise RobustDrakeError(f"unknown effect kind(s) {bad}; known: {', '.join(EFFECTS)}")
-    opts = RepairOptions(
-        robot=args.robot, torque=args.torque,
-        velocities="logged" if args.velocities == "logged" else "positions",
-        cutoff_hz=DEFAULT_CUTOFF_HZ if args.cutoff is None else args.cutoff,
-        kinds=kinds, min_gain=MIN_GAIN if args.min_gain is None else args.min_gain,
-        max_effects=args.max_effects, consistent=not args.no_consistent, replay=not args.no_replay,
-        plots=not args.no_plots, nominal=not args.no_nominal, instruments=not args.no_instruments,
-    )
-    if args.sigma_rel is not None:
-        if not args.sigma_rel > 0:
-            raise RobustDrakeError(f"--sigma-rel must be > 0, got {args.sigma_rel}")
-        opts.sigma_rel = args.sigma_rel
+    try:  # one validation for the command line and rd.repair (RepairOptions.validate)
+        opts = RepairOptions(
+            robot=args.robot, torque=args.torque,
+            velocities="logged" if args.velocities == "logged" else "positions",
+            cutoff_hz=DEFAULT_CUTOFF_HZ if args.cutoff is None else args.cutoff,
+            kinds=args.effects, min_gain=MIN_GAIN if args.min_gain is None else args.min_gain,
+            max_effects=args.max_effects, consistent=not args.no_consistent, replay=not args.no_replay,
+            plots=not args.no_plots, nominal=not args.no_nominal, instruments=not args.no_instruments,
+            **({} if args.sigma_rel is None else {"sigma_rel": args.sigma_rel}),
+        )
+    except OptionError as exc:
+        raise RobustDrakeError(exc.as_flag(CLI_FLAGS.get(exc.option, exc.option))) from None
     from robust_drake.cli import plot_dir
 
     _check_export(args)
@@ -107,13 +100,22 @@ def run(args) -> int:
 
     reuse_freed_memory()  # large temporaries reused instead of re-mapped (allocator.py: ~25 % of the CPU)
     log = None  # progress lines -> the robust_drake logger -> stderr (-q silences them)
-    rep = run_repair(args.fit, opts, validate_paths=args.validate, out_dir=args.out, progress=log,
-                     overwrite=args.force)
+    try:
+        rep = run_repair(args.fit, opts, validate_paths=args.validate, out_dir=args.out, progress=log,
+                         overwrite=args.force, cli=True)
+    except OptionError as exc:
+        raise RobustDrakeError(exc.as_flag(CLI_FLAGS.get(exc.option, exc.option))) from None
     if plots is not None:
         import shutil
 
-        rep["plot_copies"] = [str(shutil.copy(os.path.join(args.out, f), plots / os.path.basename(f)))
-                              for f in rep.get("plots") or [] if os.path.isfile(os.path.join(args.out, f))]
+        copies = []
+        for f in rep.get("plots") or []:
+            src, dst = os.path.join(args.out, f), plots / os.path.basename(f)
+            if os.path.isfile(src):
+                if not (dst.exists() and os.path.samefile(src, dst)):  # --plot = --out: already there
+                    shutil.copy(src, dst)
+                copies.append(str(dst))
+        rep["plot_copies"] = copies
     _export(args, rep)
     for w in rep.get("warnings") or []:  # the same list as report.json["warnings"] and report.md
         print(f"warning: {w}", file=sys.stderr)

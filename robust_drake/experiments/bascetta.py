@@ -49,7 +49,8 @@ def simulate_case(case: str, gains=(25.0, 5.0), duration=None, boundary=0.01, pe
     cl = build_closed_loop(cfg)
     cl.add_log("w", cl.controller.GetOutputPort("w"))
     cl.add_log("rho", cl.controller.GetOutputPort("rho"))
-    res = cl.simulate()
+    with np.errstate(over="ignore", invalid="ignore"):  # a diverging loop says so (res.diverged), once
+        res = cl.simulate()
     return res, cl.controller
 
 
@@ -70,6 +71,7 @@ def case_summary(res, ctrl) -> dict:
         "torque_max": np.max(np.abs(res.u), axis=0).tolist(),
         "boundary": ctrl.boundary,
         "diverged": bool(res.diverged),
+        "divergence_reason": getattr(res, "divergence_reason", None) if res.diverged else None,
         "wall_seconds": res.wall_seconds,
         "sim_seconds": res.sim_seconds,
     }

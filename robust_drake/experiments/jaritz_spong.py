@@ -209,10 +209,23 @@ def _failed_row(spec, error):
     return row
 
 
+def check_spec_sizes(specs: list[dict]) -> None:
+    """``diagram.check_run_size`` of every distinct (trajectory, duration, rate) of ``specs``
+    (the reference's own length where no duration is given): too few ticks or too many samples
+    fail at once, with one message, instead of in every run."""
+    from robust_drake.diagram import check_run_size
+    from robust_drake.models import get_arm
+    from robust_drake.trajectories import make_reference
+
+    for traj, duration, rate in dict.fromkeys((s["trajectory"], s.get("duration"), s["rate"]) for s in specs):
+        check_run_size(duration if duration is not None else make_reference(get_arm("d2r2"), traj).duration, rate)
+
+
 def run_specs(specs: list[dict], workers: int | None = None, progress: bool = True, desc="runs") -> list[dict]:
     """Run specs in parallel; a failed run is reported in its row (``error``), others complete."""
     from robust_drake.parallel import run_parallel
 
+    check_spec_sizes(specs)  # a run of too few ticks is refused before anything starts
     outcomes = run_parallel(run_one, specs, keys=[f"t{s['table']}/{s['controller']}/{s['rate']:g}/{s.get('model', 'rigid')}" for s in specs],
                             workers=workers, desc=desc, progress=progress)
     rows = []

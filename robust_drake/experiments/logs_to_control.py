@@ -244,7 +244,7 @@ def identified_set(cfg, out_dir):
     if truth_r > 1.0:
         raise RobustDrakeError(f"{cfg.robot}: the true base parameters lie outside the identified "
                                f"{100 * (1 - cfg.alpha):g} % set (radius {truth_r:.3g}); the experiment "
-                               "does not identify this arm (a longer --duration or a lower --noise-fraction "
+                               "does not identify this arm (a longer log duration or a lower noise fraction "
                                "may)")
     return model, theta0, P, reg, truth, truth_r
 

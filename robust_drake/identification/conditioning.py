@@ -228,3 +228,50 @@ def velocity_agreement(qd_logged: np.ndarray, qd_from_q: np.ndarray, name: str =
 __all__ = ["GAP_FACTOR", "StampDiagnosis", "split_at_gaps", "classify_stamps", "uniform_grid",
            "resample_cubic", "condition_stretch", "stuck_mask", "derivative_consistency",
            "velocity_agreement", "agreement"]
+
+
+#: family-wise level of the position-jump test (:func:`position_jumps`) over every step and joint
+#: of a file (Bonferroni): a file of smooth motion is flagged with at most this probability
+JUMP_ALPHA = 1e-4
+#: a jump within this fraction of a whole number of turns (2 pi k) is a wrapped angle
+WRAP_TOL = 0.05
+
+
+def position_jumps(q: np.ndarray, alpha: float = JUMP_ALPHA) -> list[tuple[int, int, float, float]]:
+    """Steps ``k -> k+1`` in which a joint's position moves far more than in both neighbouring
+    steps: ``(k, joint, step [rad], z)``, sorted.
+
+    A motion sampled above its band changes its step only by acceleration x dt^2 (plus encoder
+    noise) from one sample to the next, so ``e_k = |dq_k| - max(|dq_{k-1}|, |dq_{k+1}|)`` is of the
+    size of the second differences. ``z = e_k / s`` with ``s`` = 1.4826 MAD of the second
+    differences + one encoder quantum (the smallest non-zero step); a step with ``z`` above the
+    normal quantile at ``alpha`` / (number of steps x joints) is one no motion of this log makes:
+    two logs joined with shifted stamps, an encoder glitch, a wrapped angle. Measured on the DFKI
+    logs (9 files, both joints): largest z 4.8, limit 5.7; a joined simulated log 169 and 4142."""
+    from scipy.stats import norm
+
+    q = np.asarray(q, float).reshape(len(q), -1)
+    N, n = q.shape
+    if N < 8:
+        return []
+    dq = np.diff(q, axis=0)
+    d2 = np.diff(dq, axis=0)
+    zlim = float(norm.isf(alpha / (2 * dq.size)))
+    out = []
+    for j in range(n):
+        a = np.abs(dq[:, j])
+        steps = a[a > 0]
+        quantum = float(steps.min()) if steps.size else 0.0
+        scale = 1.4826 * float(np.median(np.abs(d2[:, j] - np.median(d2[:, j])))) + quantum
+        if scale <= 0:
+            continue
+        neighbours = np.maximum(np.r_[0.0, a[:-1]], np.r_[a[1:], 0.0])
+        z = (a - neighbours) / scale
+        out += [(int(k), j, float(dq[k, j]), float(z[k])) for k in np.nonzero(z > zlim)[0]]
+    return sorted(out)
+
+
+def is_wrap(step: float, tol: float = WRAP_TOL) -> bool:
+    """True when ``step`` [rad] is within ``tol`` of a non-zero whole number of turns."""
+    turns = step / (2 * np.pi)
+    return round(turns) != 0 and abs(turns - round(turns)) <= tol

@@ -113,6 +113,14 @@ class RawData:
     torque_column: str = "tau"
     #: the file's column names behind each array ({"q": ["q1", "q2"], ...}; for messages)
     columns: dict = field(default_factory=dict)
+    #: (N,) the file line of each row (comments and blank lines skipped; None = row + 2)
+    lines: np.ndarray | None = None
+    #: what the reader skipped or suspects (comment lines, a cut last line): warnings
+    notes: list = field(default_factory=list)
+
+    def line(self, row: int) -> int:
+        """The file line of data row ``row`` (0-based)."""
+        return int(self.lines[row]) if self.lines is not None and row < len(self.lines) else row + 2
 
     @property
     def n(self) -> int:
@@ -266,22 +274,84 @@ def detect_format(columns: list[str]) -> str:
     )
 
 
-def read_header(path: str) -> list[str]:
-    """The header line of a CSV as written (stripped names), read without pandas.
+#: the last files read (key: device, inode, size, mtime; a FIFO or /dev/fd pipe by device and inode
+#: alone): a second load of the same file (the instruments, the cut-off sweep) reuses the text
+#: instead of reading it again -- a pipe can be read only once
+_TEXT_CACHE: dict = {}
+_TEXT_CACHE_SIZE = 8
 
-    pandas renames a repeated name (``q1``, ``q1`` -> ``q1``, ``q1.1``) and the second copy
-    would then be ignored, so duplicates are detected here on the raw line and refused.
-    """
-    import csv
+
+def _file_key(path: str):
+    import stat
+
+    st = os.stat(path)
+    if stat.S_ISREG(st.st_mode):
+        return (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns)
+    return (st.st_dev, st.st_ino)
+
+
+def read_text(path: str) -> str:
+    """The file's text, read once (also from a FIFO or a process substitution ``<(...)``):
+    gzip-compressed files are decompressed; UTF-8 (with or without BOM), else Latin-1 (one byte
+    per character, so an odd byte in a column name never refuses the numbers); DataError for
+    other binary content (named: zip, xz, bzip2, NUL bytes)."""
+    import gzip
 
     try:
-        with open(path, newline="", encoding="utf-8-sig", errors="replace") as fh:
-            row = next(csv.reader(fh), None)
+        key = _file_key(path)
     except OSError as exc:
         raise DataError(f"{path}: cannot read ({exc.strerror or exc})") from exc
-    if not row:
-        raise DataError(f"{path}: empty file (no header line)")
+    if key in _TEXT_CACHE:
+        return _TEXT_CACHE[key]
+    try:
+        with open(path, "rb") as fh:
+            blob = fh.read()
+    except OSError as exc:
+        raise DataError(f"{path}: cannot read ({exc.strerror or exc})") from exc
+    if blob[:2] == b"\x1f\x8b":
+        try:
+            blob = gzip.decompress(blob)
+        except (OSError, EOFError) as exc:
+            raise DataError(f"{path}: a damaged gzip file ({exc})") from exc
+    for magic, kind in ((b"PK\x03\x04", "a zip archive"), (b"\xfd7zXZ", "xz-compressed"), (b"BZh", "bzip2-compressed"),
+                        (b"PAR1", "a Parquet file"), (b"\x89HDF", "an HDF5 file")):
+        if blob.startswith(magic):
+            raise DataError(f"{path}: {kind}, not a CSV text file: extract or export it as CSV first")
+    if b"\x00" in blob[:65536]:
+        raise DataError(f"{path}: binary content (NUL bytes), not a CSV text file")
+    try:
+        text = blob.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        text = blob.decode("latin-1")
+    if len(_TEXT_CACHE) >= _TEXT_CACHE_SIZE:
+        _TEXT_CACHE.pop(next(iter(_TEXT_CACHE)))
+    _TEXT_CACHE[key] = text
+    return text
+
+
+def _split_lines(text: str) -> list[str]:
+    """Lines of ``text`` split at LF, CRLF or CR only (str.splitlines would also split at the
+    Latin-1 byte 0x85 and other separators a CSV field may hold)."""
+    import re
+
+    lines = re.split(r"\r\n|\r|\n", text)
+    if lines and lines[-1] == "":
+        lines.pop()
+    return lines
+
+
+def _header_fields(line: str) -> list[str]:
+    import csv
+
+    row = next(csv.reader([line]), [])
     cols = [c.strip() for c in row]
+    while cols and cols[-1] == "":  # a trailing comma (an empty last column) is not a column
+        cols.pop()
+    return cols
+
+
+def _check_header(path: str, cols: list[str]) -> list[str]:
+    """Refuse a repeated column name (pandas would rename a second copy and ignore it)."""
     dup = [c for i, c in enumerate(cols) if c in cols[:i]]
     if dup:
         c = dup[0]
@@ -300,33 +370,136 @@ def read_header(path: str) -> list[str]:
     return cols
 
 
+def read_header(path: str) -> list[str]:
+    """The header line of a CSV as written (stripped names; comment lines ``#...`` and blank lines
+    before it skipped), read without pandas.
+
+    pandas renames a repeated name (``q1``, ``q1`` -> ``q1``, ``q1.1``) and the second copy
+    would then be ignored, so duplicates are detected here on the raw line and refused.
+    """
+    path = os.fspath(path)
+    for line in _split_lines(read_text(path)):
+        if line.strip() and not line.lstrip().startswith("#"):
+            return _check_header(path, _header_fields(line))
+    raise DataError(f"{path}: empty file (no header line)")
+
+
+def _parse(path: str) -> tuple[list[str], "object", np.ndarray, list[str]]:
+    """(header, DataFrame of the data lines, file line number of each data row, messages, the data
+    lines' text): the
+    text read once (:func:`read_text`), comment lines (``#`` first) and blank lines skipped and
+    counted, a last line without its newline left out (a writer stopped mid-line)."""
+    import io
+
+    import pandas as pd
+
+    lines = _split_lines(read_text(path))
+    text_ends = read_text(path).endswith(("\n", "\r"))
+    msgs: list[str] = []
+    header, keep, comments = None, [], []
+    for i, line in enumerate(lines):
+        stripped = line.strip()
+        if not stripped:
+            continue
+        if stripped.startswith("#"):
+            comments.append(i + 1)
+            continue
+        if header is None:
+            header = (i + 1, line)
+        else:
+            keep.append(i)
+    if header is None:
+        raise DataError(f"{path}: empty file (no header line)")
+    cols = _check_header(path, _header_fields(header[1]))
+    name = os.path.basename(path)
+    if comments and any(c > header[0] for c in comments):
+        inside = [c for c in comments if c > header[0]]
+        msgs.append(f"{name}: {len(inside)} comment line(s) among the data skipped (file lines "
+                    f"{inside[:5]}{' ...' if len(inside) > 5 else ''}); check that nothing was pasted into the log")
+    if keep and not text_ends and len(keep) > 1:
+        last = keep.pop()
+        msgs.append(f"{name}: the file does not end with a newline: its last line (file line {last + 1}) may have "
+                    "been cut off mid-write (a number cut short reads as another value) and is left out")
+    body = "\n".join(lines[i] for i in keep)
+    try:
+        df = pd.read_csv(io.StringIO(body), header=None, skip_blank_lines=False) if keep else pd.DataFrame()
+    except Exception as exc:  # pandas raises several types for garbage
+        import re
+
+        line_hint = ""
+        m = re.search(r"line (\d+)", str(exc))
+        if m and int(m.group(1)) - 1 < len(keep):
+            line_hint = f" (file line {keep[int(m.group(1)) - 1] + 1})"
+        raise DataError(f"{path}: cannot read as CSV{line_hint}: {exc}") from exc
+    if df.shape[1] > len(cols):  # trailing commas: empty extra fields are harmless, anything else is not
+        tail = df.iloc[:, len(cols):]
+        filled = tail.notna().any(axis=1).to_numpy()
+        if filled.any():
+            raise DataError(f"{path}: the header has {len(cols)} columns but file line {keep[int(filled.argmax())] + 1} "
+                            f"has {df.shape[1]} values")
+        df = df.iloc[:, :len(cols)]
+    texts = [lines[i] for i in keep]
+    return cols, df, np.asarray(keep, int) + 1, msgs, texts
+
+
+def _numeric(path: str, df, cols: list[str], names: list[str], lines: np.ndarray, texts: list[str]) -> np.ndarray:
+    """The columns ``names`` as floats; DataError naming the file line of the first value that is
+    no number (stray text) or missing (a line with fewer values than the header)."""
+    import pandas as pd
+
+    idx = [cols.index(c) for c in names]
+    if any(i >= df.shape[1] for i in idx):
+        raise DataError(f"{path}: the header has {len(cols)} columns but the data lines {df.shape[1]}")
+    out = np.empty((len(df), len(idx)))
+    for k, i in enumerate(idx):
+        col = df.iloc[:, i]
+        if not pd.api.types.is_numeric_dtype(col):  # text in the column (object or string dtype)
+            num = pd.to_numeric(col.astype(str).str.strip(), errors="coerce")
+            bad = (num.isna() & col.notna() & ~col.astype(str).str.strip().str.lower().isin(["nan", "+nan", "-nan", ""])).to_numpy()
+            if bad.any():
+                r = int(bad.argmax())
+                raise DataError(f"{path}: column {names[k]!r} at file line {lines[r]} holds "
+                                f"{str(col.iloc[r]).strip()[:40]!r}, not a number")
+            col = num
+        out[:, k] = col.to_numpy(dtype=float)
+    missing = np.isnan(out).any(axis=1)
+    if missing.any():
+        r = int(missing.argmax())
+        fields = len(next(__import__("csv").reader([texts[r]]), []))
+        if fields < len(cols):
+            raise DataError(f"{path}: file line {lines[r]} has {fields} values, the header {len(cols)} (a line cut "
+                            f"short?); {int(missing.sum())} row(s) with missing values")
+    return out
+
+
 def read_csv(path: str, torque: str = "tau_meas") -> RawData:
     """Read a canonical or DFKI CSV into :class:`RawData` (no filtering; checks columns).
 
     ``torque`` selects the DFKI torque column family (``tau_meas`` or ``tau_con``); it is
-    ignored for canonical files (always ``tau*``).
+    ignored for canonical files (always ``tau*``). The file is read once (a FIFO or a process
+    substitution works; :func:`read_text`); ``RawData.lines`` holds each row's file line and
+    ``RawData.notes`` what was skipped (comments, a cut last line).
     """
-    import pandas as pd
-
     path = os.fspath(path)
     if not os.path.exists(path):
         raise DataError(f"{path}: no such file")
-    cols = read_header(path)
+    if os.path.isdir(path):
+        raise DataError(f"{path}: is a folder, not a CSV file")
+    cols, df, lines, notes, texts = _parse(path)
     fmt = detect_format(cols)
-    try:
-        df = pd.read_csv(path)
-    except Exception as exc:  # pandas raises several types for garbage
-        raise DataError(f"{path}: cannot read as CSV ({exc})") from exc
-    if len(df.columns) != len(cols):
-        raise DataError(f"{path}: the header has {len(cols)} columns but the data {len(df.columns)}")
-    df.columns = cols
     if fmt == "canonical":
         tcol, qcols, taucols = "t", _numbered(cols, "q"), _numbered(cols, "tau")
         qdcols, qddcols = _numbered(cols, "qd"), _numbered(cols, "qdd")
         torque_column = "tau"
+        extra_q = [c for c in cols if c.startswith("q") and c[1:].isdigit() and c not in qcols]
+        extra_tau = [c for c in cols if c.startswith("tau") and c[3:].isdigit() and c not in taucols]
+        for label, extra, have in (("position", extra_q, qcols), ("torque", extra_tau, taucols)):
+            if extra:
+                raise DataError(f"{path}: {label} columns not numbered 1..n without gaps: {have + extra} (the "
+                                f"columns of joint n are q<n>, tau<n>, n = 1, 2, ...; {extra[0]!r} follows a gap)")
     else:
         if torque not in ("tau_meas", "tau_con"):
-            raise DataError(f"--torque must be 'tau_meas' or 'tau_con', got {torque!r}")
+            raise DataError(f"torque must be 'tau_meas' or 'tau_con', got {torque!r}")
         tcol, qcols, taucols = "time", _numbered(cols, "pos_meas"), _numbered(cols, torque)
         qdcols, qddcols = [], []  # vel_meas is a raw finite difference: recomputed instead
         torque_column = torque
@@ -338,23 +511,17 @@ def read_csv(path: str, torque: str = "tau_meas") -> RawData:
     for name, group in (("qd", qdcols), ("qdd", qddcols)):
         if group and len(group) != n:
             raise DataError(f"{path}: {n} position columns but {len(group)} {name} columns")
-    extra_q = [c for c in cols if c.startswith("q") and c[1:].isdigit() and c not in qcols]
-    if extra_q:
-        raise DataError(f"{path}: position columns not numbered 1..n without gaps: {extra_q}")
 
     def arr(names):
-        a = df[names].to_numpy(dtype=float) if names else None
-        return a
+        return _numeric(path, df, cols, names, lines, texts) if names else None
 
-    try:
-        t = df[tcol].to_numpy(dtype=float)
-        raw = RawData(
-            t=t, q=arr(qcols), tau=arr(taucols), qd=arr(qdcols) if qdcols else None,
-            qdd=arr(qddcols) if qddcols else None, source=path, fmt=fmt, torque_column=torque_column,
-            columns={"t": [tcol], "q": qcols, "tau": taucols, "qd": qdcols, "qdd": qddcols},
-        )
-    except ValueError as exc:
-        raise DataError(f"{path}: non-numeric values ({exc})") from exc
+    raw = RawData(
+        t=arr([tcol])[:, 0] if len(df) else np.zeros(0), q=arr(qcols), tau=arr(taucols),
+        qd=arr(qdcols) if qdcols else None, qdd=arr(qddcols) if qddcols else None, source=path, fmt=fmt,
+        torque_column=torque_column,
+        columns={"t": [tcol], "q": qcols, "tau": taucols, "qd": qdcols, "qdd": qddcols},
+    )
+    raw.lines, raw.notes = lines, notes
     return raw
 
 
@@ -394,7 +561,7 @@ def _check_values(raw: RawData) -> None:
             col = names[int(np.nonzero(bad[rows[0]])[0][0])]
             raise DataError(
                 f"{src}: {int(bad.sum())} NaN/inf values, first in column {col!r} at data row "
-                f"{rows[0] + 1} (file line {rows[0] + 2}; rows {(rows[:5] + 1).tolist()});"
+                f"{rows[0] + 1} (file line {raw.line(int(rows[0]))}; rows {(rows[:5] + 1).tolist()});"
                 " clean or cut the file, nothing is dropped silently"
             )
         if name == "t":
@@ -404,7 +571,7 @@ def _check_values(raw: RawData) -> None:
             r, c = (int(x[0]) for x in np.nonzero(big))
             raise DataError(
                 f"{src}: absurd value {a2[r, c]:.4g} in column {names[c]!r} at data row {r + 1} "
-                f"(file line {r + 2}): |x| > {MAX_ABS_VALUE:g} in SI units (rad, rad/s, rad/s^2, N m) "
+                f"(file line {raw.line(r)}): |x| > {MAX_ABS_VALUE:g} in SI units (rad, rad/s, rad/s^2, N m) "
                 f"is no measurement; {int(big.sum())} such values in the file"
             )
 
@@ -422,10 +589,19 @@ def _check_time(raw: RawData) -> np.ndarray:
         )
     dt_med = float(np.median(dt))
     if dt_med > MAX_SAMPLE_PERIOD_S:
+        # the unit that puts the sampling period between 0.1 ms and 0.1 s (10 Hz .. 10 kHz)
+        unit = next(((name, f) for name, f in (("milliseconds", 1e3), ("microseconds", 1e6), ("nanoseconds", 1e9))
+                     if 1e-4 <= dt_med / f <= MAX_SAMPLE_PERIOD_S), None)
+        if unit is None:
+            raise DataError(
+                f"{src}: the time column steps by {dt_med:g} (median): {1.0 / dt_med:.3g} Hz if it were seconds, "
+                "and no unit (ms, us, ns) makes it a usual sampling rate; identification needs the time in seconds "
+                f"with a sampling period below {MAX_SAMPLE_PERIOD_S:g} s")
+        name, f = unit
         raise DataError(
-            f"{src}: time looks like milliseconds: the time column steps by {dt_med:g} (median), i.e. "
-            f"{1.0 / dt_med:.3g} Hz if it were seconds; convert it to seconds (divide by 1000 for "
-            f"{1000.0 / dt_med:.3g} Hz). Identification needs a sampling period below "
+            f"{src}: time looks like {name}: the time column steps by {dt_med:g} (median), i.e. "
+            f"{1.0 / dt_med:.3g} Hz if it were seconds; convert it to seconds (divide by {f:g} for "
+            f"{f / dt_med:.4g} Hz). Identification needs a sampling period below "
             f"{MAX_SAMPLE_PERIOD_S:g} s"
         )
     return dt
@@ -488,16 +664,34 @@ def validate_raw(raw: RawData, n_joints: int | None = None, allow_degrees: bool 
                 f"is constant ({raw.tau[0, i]:g} N m): joint {i} treated as unpowered"
             )
     counts = position_counts(raw.q)
+    warns = list(getattr(raw, "notes", None) or []) + warns
     warns += velocity_unit_warnings(raw)
     peak = np.abs(raw.q).max(axis=0)
     if not allow_degrees and (peak > DEGREE_THRESHOLD_RAD).any():
         i = int(np.argmax(peak))
-        raise DataError(
-            f"{src}: |{column_name(raw, 'q', i)}| (joint {i}) reaches {peak[i]:.4g}, more than two turns: positions look like "
-            "degrees: convert them to rad"
-        )
+        raise DataError(f"{src}: |{column_name(raw, 'q', i)}| (joint {i}) reaches {peak[i]:.4g}, more than two turns: "
+                        + position_unit_cause(raw.q[:, i]))
     return {"dt": float(np.mean(dt)), "jitter": jitter, "max_dt": float(dt.max()), "warnings": warns,
             "counts": counts}
+
+
+def position_unit_cause(q: np.ndarray) -> str:
+    """What a position column that exceeds two turns most likely holds (for the error message):
+    raw encoder counts (whole numbers), a multi-turn offset (it moves less than two turns about a
+    value far from 0), or degrees (it moves more than two turns)."""
+    q = np.asarray(q, float)
+    span, centre = float(np.ptp(q)), float(np.median(q))
+    whole = np.all(q == np.round(q))
+    if whole and span > 100:
+        return (f"the values are whole numbers over a span of {span:.0f}: raw encoder counts? convert to rad "
+                "(x 2 pi / counts per revolution)")
+    if span <= DEGREE_THRESHOLD_RAD:
+        turns = centre / (2 * np.pi)
+        return (f"it moves only {span:.3g} about {centre:.4g}: degrees (a small motion: convert to rad, x pi / 180), "
+                f"or a multi-turn encoder offset of about {turns:.1f} turns (subtract it, so that q = 0 is the URDF's zero)")
+    if span <= 4 * 360.0:
+        return (f"it moves over {span:.4g}: positions look like degrees (convert to rad, x pi / 180)")
+    return f"it moves over {span:.4g}: positions are not in rad (degrees? encoder counts?): convert to rad"
 
 
 def position_counts(q: np.ndarray) -> np.ndarray:
@@ -562,6 +756,8 @@ def _condition_file(r: RawData, k: int, stats: dict, cutoff_hz, order, robot, tr
         msgs.append(
             f"{name}: {len(gaps)} logging gap(s) (longest {max(gaps) * 1e3:.3g} ms; a gap is a step > "
             f"{C.GAP_FACTOR:g} x the median {np.median(dt_all) * 1e3:.3g} ms): split into {len(pieces)} segments")
+    pieces, jump_msgs = _split_at_jumps(r, pieces)
+    msgs += jump_msgs
     out, dropped = [], []
     for piece in pieces:
         t = r.t[piece]
@@ -615,6 +811,38 @@ def _condition_file(r: RawData, k: int, stats: dict, cutoff_hz, order, robot, tr
         msgs.append(
             f"{name}: {len(dropped)} segment(s) too short for the filters dropped (fewer than {MIN_SAMPLES} "
             f"samples after trimming {trim_s:.3g} s at each end; lengths {[d[0] for d in dropped][:6]})")
+    return out, msgs
+
+
+def _split_at_jumps(r: RawData, pieces: list[slice]) -> tuple[list[slice], list[str]]:
+    """Position jumps no motion of the log makes (conditioning.position_jumps): a wrapped angle
+    (a whole number of turns) is unwrapped in ``r.q`` (the motion continues through it), any other
+    jump splits its piece there (two logs joined with shifted stamps, an encoder glitch); one
+    message each."""
+    from robust_drake.identification import conditioning as C
+
+    name = os.path.basename(r.source)
+    msgs, cuts = [], set()
+    jumps = C.position_jumps(r.q)
+    for k, j, step, z in jumps:
+        col = column_name(r, "q", j)
+        where = f"between file lines {r.line(k)} and {r.line(k + 1)}"
+        if C.is_wrap(step):
+            turns = int(round(step / (2 * np.pi)))
+            r.q[k + 1:, j] -= 2 * np.pi * turns
+            msgs.append(f"{name}: {col} (joint {j}) jumps by {step:.4g} rad ({turns:+d} turn(s)) {where}: a wrapped "
+                        "angle; unwrapped (the positions after it shifted by a whole number of turns)")
+        else:
+            cuts.add(k + 1)
+            msgs.append(f"{name}: {col} (joint {j}) jumps by {step:.4g} rad in one step {where} ({z:.0f} x the spread "
+                        "of its step changes; no motion of this log makes that step): two logs joined, or an encoder "
+                        "glitch? the file is split into segments there")
+    if not cuts:
+        return pieces, msgs
+    out = []
+    for p in pieces:
+        edges = [p.start] + sorted(c for c in cuts if p.start < c < p.stop) + [p.stop]
+        out += [slice(a, b) for a, b in zip(edges[:-1], edges[1:])]
     return out, msgs
 
 
@@ -739,8 +967,13 @@ def prepare(
         if segs:
             msgs += _stick_messages(segs, os.path.basename(r.source), joint_names)
         if not segs:
-            raise DataError(f"{r.source}: too short ({len(r.t)} samples) to trim {trim:.3g} s of filter "
-                            "start-up at each end of every segment; record longer or pass a smaller trim")
+            span = float(r.t[-1] - r.t[0]) if len(r.t) > 1 else 0.0
+            why = (f"the filter cut-off {cutoff_hz:g} Hz trims 2 / f_c = {trim:.3g} s of filter start-up at each end of "
+                   f"every segment, and the file lasts {span:.3g} s: raise the cut-off (default {DEFAULT_CUTOFF_HZ:g} Hz)"
+                   if cutoff_hz and trim_s is None and not given and 2 * trim >= span else
+                   f"too short ({len(r.t)} samples) to trim {trim:.3g} s of filter start-up at each end of every "
+                   "segment; record longer or pass a smaller trim")
+            raise DataError(f"{r.source}: {why}")
         fs = (FilterSettings(cutoff_hz=None, order=0, derivatives="given") if given
               else FilterSettings(cutoff_hz=cutoff_hz, order=order,
                                   velocities="logged velocities" if velocities == "logged" else "positions"))

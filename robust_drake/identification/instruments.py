@@ -42,7 +42,7 @@ import numpy as np
 from scipy import stats
 
 from robust_drake.identification.fitting import ColumnCache, fit_model, predict_tau
-from robust_drake.identification.least_squares import LS_ROWS, LSResult, RANK_TOL, identifiability
+from robust_drake.identification.least_squares import LS_ROWS, LSResult, RANK_TOL, _gram_eig, identifiability
 
 #: instrument cut-off as a fraction of the data cut-off
 INSTRUMENT_RATIO = 0.5
@@ -99,16 +99,27 @@ def solve_iv_normal(YY, ZY, ZZ, Zb, residual_of, names: list[str], w: np.ndarray
     ``sandwich``: (instrument column blocks, IdentData or None[, leverages]) for :func:`iv_sandwich`; with it
     ``cov`` is that sandwich, without it the homoscedastic covariance (``covariance`` says which)."""
     n, p = len(w), len(Zb)
-    d = np.sqrt(np.maximum(np.diag(YY), 1e-300))  # column scaling
+    # rank as least squares has it (least_squares.solve_gram): the identifiable subspace of the
+    # column-normalised Y^T W Y; the IV equations are solved on that subspace (theta has no component
+    # along a null direction, e.g. a URDF's joint-damping column equal to the viscous one, a joint
+    # that barely moves), and the parameters in a null direction are named with se = inf
+    d, _, V, keep, _ = _gram_eig(YY, RANK_TOL)  # column scaling and the identifiable directions
     dd = np.outer(d, d)
     ZYs = ZY / dd
-    theta = np.linalg.solve(ZYs, Zb / d) / d
+    Vk = V[:, keep]
+    reduced = Vk.T @ ZYs @ Vk
+    try:
+        if np.linalg.cond(reduced) > 1.0 / (RANK_TOL * np.finfo(float).eps ** 0.5):
+            raise np.linalg.LinAlgError("instruments nearly singular")
+        ZYi = Vk @ np.linalg.solve(reduced, Vk.T)
+    except np.linalg.LinAlgError:  # instruments weak along some identifiable direction
+        ZYi = Vk @ np.linalg.pinv(reduced, rcond=RANK_TOL) @ Vk.T
+    theta = ZYi @ (Zb / d) / d
     resid = residual_of(theta)
     r_w = resid * w[None, :]
     rss = float(np.sum(r_w**2))
     cond, rank, unident, _ = identifiability(None, names, RANK_TOL, G=YY)
-    sigma2 = rss / max(N * n - p, 1)
-    ZYi = np.linalg.inv(ZYs)
+    sigma2 = rss / max(N * n - rank, 1)
     cov0 = sigma2 * ZYi @ (ZZ / dd) @ ZYi.T / dd / max(n_eff_factor, 1e-12)
     cov, kind = cov0, "homoscedastic x N / N_eff"
     if sandwich is not None:
@@ -116,6 +127,8 @@ def solve_iv_normal(YY, ZY, ZZ, Zb, residual_of, names: list[str], w: np.ndarray
         kind = "filter-aware sandwich" if n_eff_factor < 1 and sandwich[1] is not None else \
             "HC3 sandwich" if sandwich[2:] and sandwich[2] is not None else "HC1 sandwich"
     se = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    for u in unident:
+        se[names.index(u)] = np.inf
     rms = np.sqrt(np.mean(resid**2, axis=0))
     res = LSResult(theta=theta, names=list(names), se=se, sigma=rms, weights=w, cond=cond, rank=rank,
                    unidentifiable=unident, residual=resid, rms=rms, N=N, rss_weighted=rss)

@@ -202,6 +202,9 @@ def solve_normal(G: np.ndarray, g: np.ndarray, residual_of, names: list[str], w:
     over joints) and ``residual_of(theta)`` = tau - Y theta (N, n), for callers that hold the
     Gram matrix already (``fitting.ColumnCache.gram``); ``rows`` as in :func:`solve_ls`."""
     n = len(w)
+    if not (np.all(np.isfinite(G)) and np.all(np.isfinite(g))):
+        raise DataError("least squares: the regressor or the torque holds NaN or infinite values (clean the data; "
+                        "nothing is dropped silently)")
     cond, rank, unident, _ = identifiability(None, names, tol, G=G)
     theta, cov0, keep, s, V, scale = solve_gram(G, g, tol)
     resid = residual_of(theta)
@@ -259,8 +262,38 @@ def rigid_body_columns(regressor, data: IdentData, out: np.ndarray | None = None
     return Y, names
 
 
+_UNDAMPED: dict = {}
+
+
 def load_regressor(robot):
-    """The Drake-derived base-parameter regressor of a robot name in ``models/`` or a URDF path."""
+    """The Drake-derived base-parameter regressor of a robot name in ``models/`` or a URDF path.
+
+    Identification fits one viscous level per joint (``fv_j``, :func:`friction_columns`), so a URDF's
+    ``<dynamics damping=...>`` column ``b_<joint>`` (the same ``qd_j``) would duplicate it: the
+    regressor is then derived from the plant with that damping set to 0 (``damping_dropped`` names
+    the joints and the URDF's values; the fitted ``fv_j`` carries the damping, and the replay's plant
+    has the URDF damping set to 0 too)."""
+    import os
+
     from robust_drake.regressor import InverseDynamicsRegressor
 
-    return InverseDynamicsRegressor.from_robot(robot)
+    reg = InverseDynamicsRegressor.from_robot(robot)
+    damped = [(name.split("_", 1)[1], float(reg.plant.GetJointByName(name.split("_", 1)[1]).default_damping_vector()[0]))
+              for name, kind, _ in getattr(reg, "_extras", []) if kind == "b"]
+    if not damped:
+        reg.damping_dropped = []
+        return reg
+    from robust_drake.models import make_plant, resolve_urdf
+
+    path = resolve_urdf(robot)
+    key = (str(path), os.path.getmtime(path))
+    if key not in _UNDAMPED:
+        def undamped(plant):
+            for name, _ in damped:
+                joint = plant.GetJointByName(name)
+                joint.set_default_damping_vector(np.zeros(joint.num_velocities()))
+
+        plain = InverseDynamicsRegressor(make_plant(str(path), before_finalize=undamped), urdf=str(path))
+        plain.damping_dropped = damped
+        _UNDAMPED[key] = plain
+    return _UNDAMPED[key]

@@ -119,6 +119,10 @@ class IdentifiedModel:
 
     @classmethod
     def from_json(cls, d: dict) -> "IdentifiedModel":
+        """The model of :meth:`to_json`'s dict; refuses (RobustDrakeError, one line naming the key)
+        missing keys, null or non-numeric values, lengths that disagree with the joint count or the
+        base-parameter names, and effects on joints the arm does not have."""
+        _check_model_json(d)
         try:
             cov = d["base"].get("covariance")
             return cls(robot=d["robot"], joint_names=list(d["joint_names"]),
@@ -271,6 +275,13 @@ class IdentifiedModel:
         from robust_drake.identification.least_squares import load_regressor
 
         reg = regressor or load_regressor(self.robot)
+        if getattr(reg, "base_names", None) is not None and (
+                reg.n != self.n or list(reg.base_names) != list(self.base_names)):
+            raise RobustDrakeError(
+                f"the identified model does not belong to this robot: its {self.n} joints and {len(self.base_names)} "
+                f"base parameters ({', '.join(self.base_names[:3])}, ...) against {reg.n} joints and "
+                f"{len(reg.base_names)} ({', '.join(list(reg.base_names)[:3])}, ...) of {self.robot!r}: a model of "
+                "another robot or URDF?")
         q, qd, qdd = (np.atleast_2d(np.asarray(a, float)) for a in (q, qd, qdd))
         tau = np.asarray(reg.evaluate(q, qd, qdd), float) @ self.base_values
         tau = tau + self.coulomb * np.sign(qd) + self.viscous * qd
@@ -596,6 +607,61 @@ def _urdf_save(model: IdentifiedModel, path) -> None:
 
 FORMATS: dict[str, ModelFormat] = {"json": ModelFormat(_json_matches, _json_load, _json_save),
                                    "urdf": ModelFormat(_urdf_matches, _urdf_load, _urdf_save)}
+
+
+def _check_model_json(d) -> None:
+    """RobustDrakeError (one line naming the key) unless ``d`` is a well-formed model dict."""
+    import math
+
+    def fail(key, what):
+        raise RobustDrakeError(f"not a valid identified model: {key} {what}")
+
+    def numbers(key, value, length=None, allow_null=False):
+        if not isinstance(value, (list, tuple)):
+            fail(key, f"must be a list of numbers, got {type(value).__name__}")
+        for i, x in enumerate(value):
+            if x is None and allow_null:
+                continue
+            if isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x):
+                fail(key, f"must hold finite numbers; entry {i} is {x!r}")
+        if length is not None and len(value) != length:
+            fail(key, f"has {len(value)} values for {length} {'joints' if 'friction' in key else 'parameters'}")
+
+    if not isinstance(d, dict):
+        fail("", f"must be a dict (report.json's 'model'), got {type(d).__name__}")
+    for key in ("robot", "joint_names", "base", "friction"):
+        if key not in d:
+            fail(key, "is missing")
+    if not isinstance(d["robot"], str) or not d["robot"]:
+        fail("robot", f"must be a robot name or URDF path, got {d['robot']!r}")
+    names = d["joint_names"]
+    if not isinstance(names, list) or not names or not all(isinstance(x, str) for x in names):
+        fail("joint_names", f"must be a non-empty list of names, got {names!r}")
+    n = len(names)
+    base, fr = d["base"], d["friction"]
+    if not isinstance(base, dict) or not isinstance(fr, dict):
+        fail("base/friction", "must be dicts")
+    bn = base.get("names")
+    if not isinstance(bn, list) or not all(isinstance(x, str) for x in bn):
+        fail("base.names", f"must be a list of names, got {bn!r}")
+    numbers("base.values", base.get("values"), len(bn))
+    cov = base.get("covariance")
+    if cov is not None:
+        if not isinstance(cov, list) or len(cov) != len(bn):
+            fail("base.covariance", f"must be {len(bn)} x {len(bn)} or null")
+        for row in cov:
+            numbers("base.covariance", row, len(bn), allow_null=True)
+    numbers("friction.coulomb", fr.get("coulomb"), n)
+    numbers("friction.viscous", fr.get("viscous"), n)
+    for k, e in enumerate(d.get("effects") or []):
+        if not isinstance(e, dict) or not isinstance(e.get("kind"), str):
+            fail(f"effects[{k}]", "must be a dict with a kind")
+        j = e.get("joint")
+        if j is not None and (isinstance(j, bool) or not isinstance(j, int) or not 0 <= j < n):
+            fail(f"effects[{k}].joint", f"must be null or a joint 0..{n - 1}, got {j!r}")
+        numbers(f"effects[{k}].coefficients", e.get("coefficients"))
+        if not isinstance(e.get("parameters", {}), dict):
+            fail(f"effects[{k}].parameters", "must be a dict")
 
 
 def joint_names_of(regressor, n: int) -> list[str]:

@@ -68,6 +68,103 @@ class RepairOptions:
     never_worse_tol: float = 0.01
     notes: list[str] = field(default_factory=list)
 
+    def __post_init__(self):
+        self.validate()
+
+    def validate(self) -> "RepairOptions":
+        """Check and normalise every option: the one validation behind ``robust-drake repair`` and
+        ``rd.repair`` (each bad value raises :class:`~robust_drake.errors.OptionError` naming the
+        option; the command line reports it under its flag, :data:`CLI_FLAGS`). ``kinds`` may be a
+        comma-separated string (as ``--effects``); an empty one is refused (None = the library)."""
+        from robust_drake.errors import OptionError
+        from robust_drake.model_repair.effects import EFFECTS
+
+        if not isinstance(self.robot, (str, os.PathLike)) or not str(os.fspath(self.robot)).strip():
+            raise OptionError("robot", f"must be a robot name or a URDF path, got {self.robot!r}")
+        self.robot = os.fspath(self.robot)
+        if self.torque not in ("tau_meas", "tau_con"):
+            raise OptionError("torque", f"must be 'tau_meas' or 'tau_con', got {self.torque!r}")
+        self.velocities = {"differentiated": "positions"}.get(self.velocities, self.velocities) \
+            if isinstance(self.velocities, str) else self.velocities
+        if self.velocities not in ("positions", "logged"):
+            raise OptionError("velocities", f"must be 'positions' (differentiated) or 'logged', got {self.velocities!r}")
+        if self.cutoff_hz is not None:
+            self.cutoff_hz = _number("cutoff_hz", self.cutoff_hz, "a cut-off in Hz", positive=True)
+        if isinstance(self.kinds, str):
+            text = self.kinds
+            self.kinds = [k.strip() for k in text.split(",") if k.strip()]
+            if not self.kinds:
+                raise OptionError("kinds", f"is empty ({text!r}): name effect kinds separated by commas "
+                                  f"(known: {', '.join(EFFECTS)}), or leave it out for the whole library")
+        if self.kinds is not None:
+            try:
+                kinds = list(self.kinds)
+            except TypeError:
+                raise OptionError("kinds", f"must be a list of effect kind names, got {self.kinds!r}") from None
+            bad = [k for k in kinds if not isinstance(k, str) or k not in EFFECTS]
+            if bad:
+                raise OptionError("kinds", f"has unknown effect kind(s) {bad}; known: {', '.join(EFFECTS)}")
+            self.kinds = kinds
+        self.min_gain = _number("min_gain", self.min_gain, "a relative gain (0.05 = 5 %)")
+        self.max_effects = _whole("max_effects", self.max_effects)
+        self.sigma_rel = _number("sigma_rel", self.sigma_rel, "a relative trust", positive=True)
+        self.never_worse_tol = _number("never_worse_tol", self.never_worse_tol, "a relative tolerance",
+                                       allow_inf=True)  # inf: the never-worse rule switched off
+        self.replay_horizon = _number("replay_horizon", self.replay_horizon, "a horizon in s", positive=True)
+        self.replay_windows = _whole("replay_windows", self.replay_windows, minimum=1)
+        for name in ("consistent", "replay", "plots", "weighted", "instruments", "nominal"):
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                raise OptionError(name, f"must be True or False, got {getattr(self, name)!r}")
+        return self
+
+
+#: RepairOptions field (or run_repair argument) -> the command line's flag, for messages
+CLI_FLAGS = {"robot": "--robot", "torque": "--torque", "cutoff_hz": "--cutoff", "velocities": "--velocities",
+             "kinds": "--effects", "min_gain": "--min-gain", "max_effects": "--max-effects",
+             "sigma_rel": "--sigma-rel", "out": "--out", "fit": "FIT.csv", "validate": "--validate",
+             "overwrite": "--force"}
+
+
+def _number(name: str, value, what: str, positive: bool = False, allow_inf: bool = False) -> float:
+    """``value`` as a finite float >= 0 (> 0 with ``positive``; +inf too with ``allow_inf``), else
+    OptionError naming ``name``."""
+    import math
+
+    from robust_drake.errors import OptionError
+
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise OptionError(name, f"must be a number ({what}), got {value!r}")
+    value = float(value)
+    if math.isnan(value) or (math.isinf(value) and not (allow_inf and value > 0)) or value < 0 \
+            or (positive and value == 0):
+        raise OptionError(name, f"must be {'> 0' if positive else '>= 0'} and finite, got {value!r}")
+    return value
+
+
+def _whole(name: str, value, minimum: int = 0) -> int:
+    from robust_drake.errors import OptionError
+
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < minimum:
+        raise OptionError(name, f"must be a whole number >= {minimum}, got {value!r}")
+    return int(value)
+
+
+def _paths(name: str, value, allow_none: bool = False) -> list | None:
+    """One path or a sequence of paths as a list of ``str`` (OptionError otherwise)."""
+    from robust_drake.errors import OptionError
+
+    if value is None and allow_none:
+        return None
+    items = [value] if isinstance(value, (str, os.PathLike)) else value
+    try:
+        items = list(items)
+    except TypeError:
+        raise OptionError(name, f"must be a file path or a list of file paths, got {value!r}") from None
+    bad = [p for p in items if not isinstance(p, (str, os.PathLike)) or not str(os.fspath(p)).strip()]
+    if bad or not items:
+        raise OptionError(name, f"must be a file path or a non-empty list of file paths, got {value!r}")
+    return [os.fspath(p) for p in items]
+
 
 # physical plausibility of an identified effect, generic + hardware-aware where we know it
 def plausibility(kind: str, params: dict, robot: str) -> str:
@@ -149,28 +246,33 @@ def plausibility(kind: str, params: dict, robot: str) -> str:
 REPORT_FILES = ("report.md", "report.json")
 
 
-def check_output_dir(out_dir, overwrite: bool) -> str:
+def check_output_dir(out_dir, overwrite: bool, recovered: list | None = None, cli: bool = True) -> str:
     """Check ``out_dir`` *before* any computation; return its absolute path.
 
     Refused: an empty name, a path that is a file, a folder that holds an earlier report
     (``report.md`` or ``report.json``) unless ``overwrite``, and a place where no folder can be
-    created (probed by creating and removing a temporary folder next to it).
+    created (probed by creating and removing a temporary folder next to it). Leftovers of a killed
+    earlier run are dealt with first (:func:`recover_leftovers`; its lines appended to ``recovered``).
     """
     import tempfile
 
+    opt, force = ("--out", "pass --force") if cli else ("out", "pass overwrite=True")
+
     text = os.fspath(out_dir)
     if not str(text).strip():
-        raise RobustDrakeError(f"{option_name('--out', 'out')} is empty: give the folder for report.md, report.json "
-                               "and the plots")
+        raise RobustDrakeError(f"{opt} is empty: give the folder for report.md, report.json and the plots")
     path = os.path.abspath(text)
+    done = recover_leftovers(path)  # a killed earlier run: restore its report, remove its temporary folders
+    if recovered is not None:
+        recovered += done
     if os.path.exists(path) and not os.path.isdir(path):
-        raise RobustDrakeError(f"{option_name('--out', 'out')} {text} is a file, not a folder; choose a folder name")
+        raise RobustDrakeError(f"{opt} {text} is a file, not a folder; choose a folder name")
     if os.path.isdir(path) and not overwrite:
         held = [f for f in REPORT_FILES if os.path.exists(os.path.join(path, f))]
         if held:
             raise RobustDrakeError(
-                f"{text} holds an earlier repair report ({', '.join(held)}); choose another "
-                f"{option_name('--out', 'out= folder')} or pass {option_name('--force', 'overwrite=True')} to replace it")
+                f"{text} holds an earlier repair report ({', '.join(held)}); choose another {opt} or "
+                f"{force} to replace it")
     parent = os.path.dirname(path)
     try:
         os.makedirs(parent, exist_ok=True)
@@ -181,7 +283,7 @@ def check_output_dir(out_dir, overwrite: bool) -> str:
             os.close(fd)
             os.remove(probe)
     except OSError as exc:
-        raise RobustDrakeError(f"cannot write the report to --out {text}: "
+        raise RobustDrakeError(f"cannot write the report to {opt} {text}: "
                                f"{exc.strerror or exc} ({exc.filename or parent})") from exc
     return path
 
@@ -201,6 +303,96 @@ def _report_artefacts(out: str) -> set[str]:
     return {n for n in names if os.path.isfile(os.path.join(out, n))}
 
 
+def _exchange(a: str, b: str) -> bool:
+    """Swap the paths ``a`` and ``b`` in one atomic step (Linux ``renameat2(RENAME_EXCHANGE)``):
+    at every instant each name holds a complete folder. False where the system or the file
+    system cannot (then the caller falls back to two renames)."""
+    import ctypes
+    import errno
+    import sys
+
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        fn = ctypes.CDLL(None, use_errno=True).renameat2
+    except (OSError, AttributeError):
+        return False
+    fn.argtypes = [ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_uint]
+    at_fdcwd, rename_exchange = -100, 2
+    if fn(at_fdcwd, os.fsencode(a), at_fdcwd, os.fsencode(b), rename_exchange) == 0:
+        return True
+    err = ctypes.get_errno()
+    if err in (errno.EINVAL, errno.ENOSYS, errno.EOPNOTSUPP, errno.EPERM):
+        return False
+    raise OSError(err, os.strerror(err), b)
+
+
+#: leftover names beside ``--out``: ``.<name>.tmp-<pid>-*`` (a report being written) and
+#: ``.<name>.old-<pid>-*`` (an earlier report being replaced), ``pid`` = the writing process
+_LEFTOVER_KINDS = ("tmp", "old")
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def _leftovers(out: str) -> list[tuple[str, str, int | None]]:
+    """(path, kind, writer pid or None) of this output folder's leftovers (see _LEFTOVER_KINDS)."""
+    parent, base = os.path.dirname(out), os.path.basename(out)
+    found = []
+    try:
+        names = os.listdir(parent)
+    except OSError:
+        return []
+    for name in names:
+        for kind in _LEFTOVER_KINDS:
+            prefix = f".{base}.{kind}-"
+            if name.startswith(prefix):
+                pid_text = name[len(prefix):].split("-", 1)[0]
+                found.append((os.path.join(parent, name), kind, int(pid_text) if pid_text.isdigit() else None))
+    return sorted(found)
+
+
+def recover_leftovers(out: str) -> list[str]:
+    """Undo what a killed run (SIGKILL, power loss) left beside ``out``; returns one line per action
+    (the run that found them lists them among its report's warnings).
+
+    * ``out`` missing and an earlier report set aside (``.old-``): it is put back at ``out``;
+    * an earlier report set aside while ``out`` holds a complete one (the kill came after the new
+      report was in place): the set-aside copy is removed;
+    * temporary folders of a report being written: removed.
+    Leftovers of a process still running (another repair writing the same folder) are left alone;
+    the lines are also logged as warnings."""
+    import shutil
+
+    done = []
+    for path, kind, pid in _leftovers(out):
+        if pid is not None and pid != os.getpid() and _pid_alive(pid):
+            continue
+        if kind == "old" and not os.path.exists(out) and os.path.isfile(os.path.join(path, "report.json")):
+            os.rename(path, out)
+            done.append(f"restored the earlier report at {out} from {os.path.basename(path)} (a run was killed "
+                        "while replacing it)")
+        elif kind == "old":
+            shutil.rmtree(path, ignore_errors=True)
+            done.append(f"removed {os.path.basename(path)} beside {out}: the earlier report a killed run had "
+                        "already replaced")
+        else:
+            shutil.rmtree(path, ignore_errors=True)
+            done.append(f"removed {os.path.basename(path)} beside {out}: the unfinished report of a killed run")
+    if done:
+        from robust_drake.log import get_logger
+
+        for line in done:
+            get_logger().warning("%s", line)
+    return done
+
+
 def _publish(tmp: str, out: str, keep: list[str]) -> None:
     """Move the complete report folder ``tmp`` into place at ``out``.
 
@@ -208,9 +400,12 @@ def _publish(tmp: str, out: str, keep: list[str]) -> None:
     * ``out`` without an earlier report (e.g. a folder holding the input CSVs): the new files are
       moved in one by one (nothing of value is replaced).
     * ``out`` with an earlier report (``overwrite``) and nothing else but this run's inputs
-      ``keep``: the inputs are copied into ``tmp``, ``out`` is renamed aside, ``tmp`` renamed to
-      ``out`` and the old folder removed -- the old report's plots do not survive beside the new
-      one. If the second rename fails, the old folder is put back.
+      ``keep``: the inputs are copied into ``tmp``, then ``tmp`` and ``out`` are exchanged in one
+      atomic step (:func:`_exchange`) and the old folder, now at ``tmp``, removed -- the old
+      report's plots do not survive beside the new one, and a kill at any instant leaves a complete
+      report at ``out`` (a leftover folder is removed by the next run, :func:`recover_leftovers`).
+      Without an atomic exchange: ``out`` renamed aside, ``tmp`` renamed to ``out``; a kill between
+      the two renames is repaired by the next run (the earlier report is put back and the run says so).
     * ``out`` with an earlier report *and* other files (not ours to delete): the earlier report's
       files (report.md/json and its plots) are removed and the new ones moved in.
     In every case the report is complete in ``tmp`` before anything in ``out`` is touched.
@@ -236,7 +431,10 @@ def _publish(tmp: str, out: str, keep: list[str]) -> None:
         if not os.path.exists(dst):
             os.makedirs(os.path.dirname(dst), exist_ok=True)
             shutil.copy2(src, dst)
-    old = tempfile.mkdtemp(prefix=f".{os.path.basename(out)}.old-", dir=os.path.dirname(out))
+    if _exchange(tmp, out):
+        shutil.rmtree(tmp, ignore_errors=True)  # tmp now holds the earlier report
+        return
+    old = tempfile.mkdtemp(prefix=f".{os.path.basename(out)}.old-{os.getpid()}-", dir=os.path.dirname(out))
     os.rmdir(old)
     os.rename(out, old)
     try:
@@ -259,7 +457,7 @@ def _inputs_inside(paths, out: str) -> list[str]:
 
 
 def run_repair(fit_paths, options: RepairOptions, validate_paths=None, out_dir=None, progress=None,
-               overwrite: bool = True) -> dict:
+               overwrite: bool = True, cli: bool = False) -> dict:
     """The whole loop as a sequence of stages (``stages.py``); writes ``report.json``/``report.md``/
     plots into ``out_dir`` when given, rendered from one result (``report.py``).
 
@@ -275,15 +473,30 @@ def run_repair(fit_paths, options: RepairOptions, validate_paths=None, out_dir=N
 
     S = StageTimer(S, total=8, desc="repair", enabled=progress is None)  # a bar (terminal, notebook) or a line per stage; -v: timings
 
+    from robust_drake.errors import OptionError
+
+    if not isinstance(options, RepairOptions):
+        raise OptionError("options", f"must be a RepairOptions, got {type(options).__name__}")
+    opts = options.validate()  # again: fields may have been changed since construction
+    fit_paths = _paths("fit", fit_paths)
+    validate_paths = _paths("validate", validate_paths, allow_none=True)
+    if out_dir is not None and not isinstance(out_dir, (str, os.PathLike)):
+        raise OptionError("out", f"must be a folder path (str or os.PathLike), got {out_dir!r}")
+    if progress is not None and not callable(progress):
+        raise OptionError("progress", f"must be a callable progress(message) or None, got {progress!r}")
+    if not isinstance(overwrite, (bool, np.bool_)):
+        raise OptionError("overwrite", f"must be True or False, got {overwrite!r}")
     log = progress_callback(progress)  # None: the "robust_drake" logger at INFO
-    opts = options
-    out_path = check_output_dir(out_dir, overwrite) if out_dir is not None else None
+    recovered: list[str] = []
+    out_path = check_output_dir(out_dir, overwrite, recovered, cli=cli) if out_dir is not None else None
     IC.check_distinct_files(fit_paths, validate_paths)
     _check_robot_urdf(opts.robot)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", DataWarning)
         inp = S.load_inputs(fit_paths, validate_paths, opts, log)
         base = S.fit_baseline(inp, opts, log)
+        if validate_paths:  # validation data that the fitted baseline does not carry over to
+            inp.warnings += IC.transfer_check(inp.val.tau, inp.val.tau - base.val_residual, base.fit.rms)
         est = S.choose_estimator(inp, base, opts, log)
         sel = S.select_effects(inp, base, est, opts, log)
         sel = S.resolve_torque_scale(inp, base, est, sel, opts, log)
@@ -291,7 +504,8 @@ def run_repair(fit_paths, options: RepairOptions, validate_paths=None, out_dir=N
         est, sel, fin, cons, replay_out = S.replay_guard(inp, base, est, sel, guard, opts, log)
         nominal = S.compare_nominal(inp, sel, fin, guard, opts, log)
     _rate_plausibility(fin.effects_out, opts.robot)
-    warn_msgs = list(dict.fromkeys(inp.warnings + sorted({str(w.message) for w in caught})))
+    warn_msgs = list(dict.fromkeys(recovered + inp.warnings
+                                   + sorted({str(w.message) for w in caught})))
     urdf_better = urdf_model_validates_better(nominal, fin.val_residual, guard.tolerance)
     if urdf_better:
         warn_msgs.append(urdf_better)
@@ -336,7 +550,7 @@ def _write_report(report: dict, result, out_path: str, fit_paths, validate_paths
     import tempfile
 
     opts, inp = result.opts, result.inputs
-    tmp = tempfile.mkdtemp(prefix=f".{os.path.basename(out_path)}.tmp-", dir=os.path.dirname(out_path))
+    tmp = tempfile.mkdtemp(prefix=f".{os.path.basename(out_path)}.tmp-{os.getpid()}-", dir=os.path.dirname(out_path))
     try:
         umask = os.umask(0)
         os.umask(umask)

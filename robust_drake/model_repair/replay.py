@@ -106,6 +106,10 @@ def replay(robot, data: IdentData, coulomb, viscous, effects=(), inertias=None, 
         sim = Simulator(diagram)
         ctx = sim.get_mutable_context()
         pctx = plant.GetMyMutableContextFromRoot(ctx)
+        for j in plant.GetJointIndices():  # the identified viscous level carries a URDF's joint damping
+            joint = plant.get_joint(j)      # (least_squares.load_regressor): not counted twice
+            if joint.num_velocities() and np.any(joint.GetDampingVector(pctx) != 0):
+                joint.SetDampingVector(pctx, np.zeros(joint.num_velocities()))
         if inertias is not None:
             set_plant_inertias(plant, pctx, *inertias)
         sim.get_mutable_integrator().set_target_accuracy(1e-5)

@@ -101,6 +101,13 @@ def load_inputs(fit_paths, validate_paths, opts, log) -> Inputs:
     n = getattr(regressor, "n", None)
     if getattr(regressor, "plant", None) is not None:
         warn += IC.prismatic_warnings(regressor.plant)
+        from robust_drake.models import root_weld_warning
+
+        warn += [w for w in [root_weld_warning(opts.robot, regressor.plant)] if w]  # also in report.json/md
+    if getattr(regressor, "damping_dropped", None):
+        warn.append("the URDF's joint damping (" + ", ".join(f"{j} {b:g} N m s/rad" for j, b in regressor.damping_dropped)
+                    + ") is not a separate parameter: the fitted viscous level fv of each joint carries it (one column, "
+                    "not two equal ones), and the replay's plant runs without the URDF damping")
     names = joint_names_of(regressor, n) if n is not None else None
     data = load(fit_paths, robot=opts.robot, n_joints=n, torque=opts.torque, cutoff_hz=opts.cutoff_hz,
                 velocities=opts.velocities, joint_names=names)
@@ -111,7 +118,7 @@ def load_inputs(fit_paths, validate_paths, opts, log) -> Inputs:
         fit = data
     else:
         fit, val = split_tail(data)
-        notes.append(f"no --validate given: the last {HOLDOUT_FRACTION:.0%} of every fit file is "
+        notes.append(f"no validation files given: the last {HOLDOUT_FRACTION:.0%} of every fit file is "
                      "held out (contiguous tail) as validation data")
     log(f"data: fit {fit.N} samples ({len(fit.sources)} files), validate {val.N} samples")
     exclude = friction_exclusion(fit)  # stiction: those rows of the stuck joint's equation are left out
@@ -121,6 +128,8 @@ def load_inputs(fit_paths, validate_paths, opts, log) -> Inputs:
         warn.append(budget_warning)
     units, unit_warnings = IC.torque_scale_check(fit, regressor)
     warn += unit_warnings
+    if validate_paths:  # the same plausibility checks on the validation files
+        warn += [f"validation files: {w}" for w in IC.torque_scale_check(val, regressor)[1]]
     names = joint_names_of(regressor, data.n)
     warn += exclusion_messages(fit, exclude, names)
     frozen = frozen_joints(data)
