@@ -295,19 +295,15 @@ def repair(fit: Any, robot: str, *, validate: Any = None,
         ``res["verdict"]``, ``res["warnings"]``, ...) with ``.report`` (the dict), ``.model`` and
         ``.baseline_model`` (:class:`IdentifiedModel`), ``.plot()`` and ``.to_markdown()``.
     """
+    from robust_drake.errors import OptionError
     from robust_drake.identification.data import DEFAULT_CUTOFF_HZ
+    from robust_drake.log import progress_callback
     from robust_drake.model_repair.pipeline import RepairOptions
     from robust_drake.model_repair.selection import MIN_GAIN
-
-    from robust_drake.errors import OptionError
-    from robust_drake.log import progress_callback
-
     try:  # the command line's validation (RepairOptions.validate, pipeline.run_repair): one set of rules
-        opts = RepairOptions(robot=robot, torque=torque,
-                             cutoff_hz=DEFAULT_CUTOFF_HZ if cutoff_hz is None else cutoff_hz,
-                             kinds=effects, min_gain=MIN_GAIN if min_gain is None else min_gain,
-                             max_effects=max_effects, consistent=consistent, replay=replay,
-                             plots=plots, nominal=nominal, instruments=instruments,
+        opts = RepairOptions(robot=robot, torque=torque, cutoff_hz=DEFAULT_CUTOFF_HZ if cutoff_hz is None else cutoff_hz,
+                             kinds=effects, min_gain=MIN_GAIN if min_gain is None else min_gain, max_effects=max_effects,
+                             consistent=consistent, replay=replay, plots=plots, nominal=nominal, instruments=instruments,
                              **({} if sigma_rel is None else {"sigma_rel": sigma_rel}))
         return _repair_logs(fit, validate, opts, out, progress_callback(progress), overwrite)
     except OptionError as exc:

@@ -308,8 +308,8 @@ def test_api_options_are_validated_like_the_cli(sim, tmp_path, capsys, api, argv
 
 
 @pytest.mark.parametrize("kwargs, text", [
-    ({"fit": 123}, "fit must be a file path"),
-    ({"fit": None}, "fit must be a file path"),
+    ({"fit": 123}, "logs must be CSV paths, an array"),
+    ({"fit": None}, "logs must be CSV paths, an array"),
     ({"robot": None}, "robot must be a robot name"),
     ({"cutoff_hz": "8"}, "cutoff_hz must be a number"),
     ({"progress": 42}, "progress must be a callable"),

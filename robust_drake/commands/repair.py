@@ -106,16 +106,7 @@ def run(args) -> int:
     except OptionError as exc:
         raise RobustDrakeError(exc.as_flag(CLI_FLAGS.get(exc.option, exc.option))) from None
     if plots is not None:
-        import shutil
-
-        copies = []
-        for f in rep.get("plots") or []:
-            src, dst = os.path.join(args.out, f), plots / os.path.basename(f)
-            if os.path.isfile(src):
-                if not (dst.exists() and os.path.samefile(src, dst)):  # --plot = --out: already there
-                    shutil.copy(src, dst)
-                copies.append(str(dst))
-        rep["plot_copies"] = copies
+        rep["plot_copies"] = _copy_plots(rep.get("plots") or [], args.out, plots)
     _export(args, rep)
     for w in rep.get("warnings") or []:  # the same list as report.json["warnings"] and report.md
         print(f"warning: {w}", file=sys.stderr)
@@ -153,6 +144,20 @@ def run(args) -> int:
     print(f"report: {os.path.join(args.out, 'report.md')}")
     _print_export(rep.get("export"))
     return 0
+
+
+def _copy_plots(files, out, plots) -> list:
+    """Copies of the report's plots (paths relative to ``out``) in ``plots`` (--plot DIR)."""
+    import shutil
+
+    copies = []
+    for f in files:
+        src, dst = os.path.join(out, f), plots / os.path.basename(f)
+        if os.path.isfile(src):
+            if not (dst.exists() and os.path.samefile(src, dst)):  # --plot = --out: already there
+                shutil.copy(src, dst)
+            copies.append(str(dst))
+    return copies
 
 
 def _check_export(args) -> None:

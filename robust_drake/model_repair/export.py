@@ -18,10 +18,10 @@ What goes where (``to_urdf``):
   hold (kind, joint, parameters, column coefficients in the repair's sign convention), the
   estimator and data summary; :func:`read_export` reads the pair back (``IdentifiedModel.from_export``).
 
-In this package's own regressor of the exported URDF the joint damping is a base parameter
-``b_<joint>`` (``regressor.InverseDynamicsRegressor``), so the loaded model's ``viscous`` holds
-only what the damping could not (the negative part; 0 otherwise): its prediction
-Y theta + fc sgn(qd) + fv qd + effects equals the consistent model's.
+The library's regressor of the exported URDF (``load_regressor``) leaves the URDF's joint damping
+out and fits one viscous level per joint, so the loaded model's ``viscous`` is the whole fitted
+level (damping included): its prediction Y theta + fc sgn(qd) + fv qd + effects equals the
+consistent model's.
 
 Refused (one line, :class:`RobustDrakeError`): a model without a consistent fit (the repair ran
 with ``--no-consistent`` or its SDP failed), and a body that is not physically valid (negative
@@ -303,11 +303,12 @@ def _plain(d):
 def read_export(path) -> dict:
     """The ``IdentifiedModel`` JSON (``IdentifiedModel.to_json`` form) of an export, from the URDF
     or its sidecar: robot = the exported URDF (absolute path), base parameters = its regressor's
-    values (rigid bodies, rotor inertias, joint damping), friction and effects from the sidecar
+    values (rigid bodies, rotor inertias; the URDF's joint damping is in the viscous level, as
+    :func:`load_regressor` fits it), friction and effects from the sidecar
     (module docstring).  ``IdentifiedModel.from_export(path)`` turns it into the model."""
     import yaml
 
-    from robust_drake.regressor import InverseDynamicsRegressor
+    from robust_drake.identification.least_squares import load_regressor
 
     path = str(path)
     if path.endswith(SIDECAR_SUFFIX):
@@ -326,9 +327,11 @@ def read_export(path) -> dict:
     if not isinstance(side, dict) or side.get("format") != FORMAT:
         raise RobustDrakeError(f"{side_path} is not an identified-model sidecar ({FORMAT})")
     urdf = os.path.abspath(urdf)
-    reg = InverseDynamicsRegressor.from_robot(urdf)
+    # the library's regressor of a URDF (load_regressor) drops <dynamics damping> columns and fits
+    # the level as fv_j: the model then carries the whole viscous level, as every other model does
+    reg = load_regressor(urdf)
     fr = side["friction"]
-    viscous = np.asarray(fr["viscous"], float) - np.asarray(fr["viscous_in_urdf_damping"], float)
+    viscous = np.asarray(fr["viscous"], float)
     return {"robot": urdf, "joint_names": list(side["joint_names"]),
             "base": {"names": list(reg.base_names), "values": np.asarray(reg.base_parameters(), float).tolist(),
                      "covariance": None},
