@@ -252,3 +252,56 @@ def test_warning_names_the_link_when_a_mass_is_off_by_more_than_3x():
     rep = C.plausibility_report(fitted, links, names, ext)
     bad = {r["link"]: r["warning"] for r in rep if not r["plausible"]}
     assert set(bad) == {"link4"} and "outside its extent" in bad["link4"]
+
+
+# ---------------------------------------------------------------------------------------- the repair loop
+@pytest.fixture(scope="module")
+def rotor_case(tmp_path_factory):
+    """DFKI C.1 arm with a reflected rotor inertia of 0.01 kg m^2 on joint 1 only; the model URDF
+    has no rotor inertia at all (``hidden_effect_case``: its drake:rotor_inertia tags removed)."""
+    from robust_drake.model_repair.simulated import hidden_effect_case
+
+    return hidden_effect_case("rotor_inertia", seed=0, out_dir=str(tmp_path_factory.mktemp("rotor")), duration=8.0)
+
+
+def _repair(case, **kw):
+    from robust_drake.model_repair import pipeline
+
+    fit, val, truth = case
+    opts = pipeline.RepairOptions(robot=truth["robot"], replay=True, replay_windows=6, plots=False, max_effects=0, **kw)
+    return pipeline.run_repair([fit], opts, validate_paths=[val]), truth
+
+
+def test_repair_puts_the_missing_rotor_inertia_into_its_candidate_and_replays_with_it(rotor_case):
+    rep, truth = _repair(rotor_case)
+    c = rep["consistent"]
+    Ia = truth["parameters"]["reflected_inertia"]
+    got = {r["joint"]: r["reflected_inertia"] for r in c["rotor_candidates"]}
+    assert set(got) == {0, 1}  # both joints geared (6:1), neither has a rotor inertia in the model
+    assert got[1] == pytest.approx(Ia, rel=0.1) and got[0] < 0.1 * Ia
+    assert c["extras"]["Ia_joint2"] == pytest.approx(got[1])
+    # the links stay the URDF's (the truth's) bodies and pass the check; the replay runs on them
+    from robust_drake.regressor import InverseDynamicsRegressor
+
+    prior = InverseDynamicsRegressor.from_robot(truth["robot"]).standard_parameters()[:20].reshape(2, 10)
+    for (name, body), p0 in zip(c["bodies"].items(), prior):
+        assert body["mass"] == pytest.approx(p0[0], rel=0.02), name
+    assert c["replay_untrusted_links"] == [] and rep["replay"]["after"]["inertias"].startswith("identified")
+    assert c["regularisation"]["applied"] and c["regularisation"]["misfit_regularised"] <= (
+        c["regularisation"]["misfit_nearest"] + c["regularisation"]["allowance"]) * (1 + 1e-6)
+
+
+def test_repair_says_the_replay_does_not_trust_an_implausible_link(rotor_case, monkeypatch):
+    real = C.plausibility_report
+
+    def link2_implausible(pi, pi_prior, names, extents, **kw):  # the fitted link 2 as if 4x too heavy
+        pi = np.array(pi, float)
+        pi[1] *= 4.0
+        return real(pi, pi_prior, names, extents, **kw)
+
+    monkeypatch.setattr(C, "plausibility_report", link2_implausible)
+    rep, _ = _repair(rotor_case)
+    c = rep["consistent"]
+    assert c["replay_untrusted_links"] == ["link2"] and "link2" in c["replay_trust"]
+    assert rep["replay"]["after"] is not None  # the replay still runs
+    assert any(w.startswith("physically consistent body: link link2: mass") and "4x" in w for w in rep["warnings"])
