@@ -104,7 +104,7 @@ def _puma_case():
     prior = reg.standard_parameters()
     links = prior[:30].reshape(3, 10)
     ext, _ = C.link_extents(reg, ["link1", "link2", "link3"], links)
-    J0s, _, floored = C.prior_pseudo_inertias(links, ext)
+    J0s, floored = C.prior_pseudo_inertias(links, ext)
     return reg, np.linalg.qr(np.column_stack([A, b]), mode="r"), prior, J0s, floored
 
 
@@ -195,6 +195,10 @@ def test_rotor_inertia_goes_into_the_rotor_candidate_not_the_link(tmp_path):
     cands = C.rotor_candidates(reg, bare)
     assert [c.joint for c in cands] == [0, 1, 2] and all(c.gear_ratio > 1 for c in cands)
     assert C.rotor_candidates(InverseDynamicsRegressor.from_robot("puma560_3link"), "puma560_3link") == []
+    # a description with a rotor inertia bounds the candidate: DFKI C.1, 6:1, 6.07e-5 kg m^2 motor side
+    dfki = strip_rotor_inertia("dfki_double_pendulum_c1", str(tmp_path / "c1_no_rotor.urdf"))
+    up = [c.upper for c in C.rotor_candidates(InverseDynamicsRegressor.from_robot(dfki), "dfki_double_pendulum_c1")]
+    assert up == pytest.approx([C.PLAUSIBLE_RATIO * 36 * 6.07e-5] * 2)
     # the true plant: the full PUMA URDF with the rotor inertia of joint 1 only (4.75 kg m^2 reflected)
     truth = {}
 

@@ -32,7 +32,7 @@ checked afterwards (eigenvalues of every J_i):
 
 2. **Regularised toward the URDF** (:func:`regularised_fit`), the log-det (Bregman, entropic)
    divergence of Lee, Wensing & Park 2020 (IEEE T-RO, "Geometric robot dynamic identification: a
-   convex programming approach", eq. 31)::
+   convex programming approach")::
 
        d(J || J0) = -log det(J0^-1 J) + tr(J0^-1 J) - 4     (convex in J, 0 iff J = J0)
 
@@ -126,10 +126,11 @@ def _cube(m: float, a: float) -> np.ndarray:
     return np.diag([m * a * a / 3.0] * 3 + [m])
 
 
-def prior_pseudo_inertias(links_prior: np.ndarray, extents) -> tuple[list[np.ndarray], list[str], list[str]]:
+def prior_pseudo_inertias(links_prior: np.ndarray, extents) -> tuple[list[np.ndarray], list[int]]:
     """J0_i of the URDF's links (nb, 10); a singular J0 (min eigenvalue <= 1e-9 x its largest, or a
     massless link) gets + PRIOR_FLOOR x _cube(m_ref, extent) with m_ref its own mass or, massless,
-    the median of the other links' masses. Returns (J0 list, notes, names of the regularised links)."""
+    the median of the other links' masses (then only the second-moment block when the link has a
+    URDF mass). Returns (J0 list, indices of the links whose prior was floored)."""
     masses = np.asarray(links_prior[:, 0], float)
     J0s, changed = [], []
     for i, p in enumerate(links_prior):
@@ -145,7 +146,7 @@ def prior_pseudo_inertias(links_prior: np.ndarray, extents) -> tuple[list[np.nda
             floor[3, 3] = 0.0
         J0s.append(J0 + floor)
         changed.append(i)
-    return J0s, [], changed
+    return J0s, changed
 
 
 def integrated_correlation(residual: np.ndarray, segment: np.ndarray | None = None) -> float:
@@ -547,7 +548,7 @@ def _regularise(R_full, K, prior, n_links, n_extra, bounds, rows, inflation, S0,
     """(regularised_fit output, regularisation report) with the budget S_0 + Delta (module docstring)."""
     R, _, rss = _compress(None, None, R_full)
     allow = misfit_allowance(rss, rows, _rank(R), inflation)
-    J0s, _, floored = prior_pseudo_inertias(prior[:10 * n_links].reshape(n_links, 10), extents)
+    J0s, floored = prior_pseudo_inertias(prior[:10 * n_links].reshape(n_links, 10), extents)
     # whiten the misfit by c s^2 so the cone's numbers are chi-square sized
     scale = max(allow["inflation"] * allow["sigma2"], 1e-300)
     Rs = R_full / math.sqrt(scale)

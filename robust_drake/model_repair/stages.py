@@ -597,6 +597,8 @@ def consistent_fits(inp: Inputs, base: Baseline, est: Estimator, sel: Selection,
     r_cv = inp.val.tau - predict_tau(inp.cv, list(sel.chosen) + rot, th)
     log(f"consistent ({cons_final.solver}): rms validate {np.round(rms(r_cv), 4)}")
     bad = cons_final.implausible
+    # replay_guard refits on every attempt: only the last attempt's bodies are warned about
+    inp.warnings[:] = [w for w in inp.warnings if not w.startswith("physically consistent body: ")]
     for row in cons_final.plausibility:
         if row["warning"]:
             inp.warnings.append(f"physically consistent body: {row['warning']}")
