@@ -501,6 +501,7 @@ class ConsistentResult:
     extras: dict | None = None  # reflected inertias / damping of the URDF's transmissions + rotor candidates
     #: (nb, 10) the nearest feasible point (program 1), before the regularisation
     nearest_pi: np.ndarray | None = None
+    nearest_extras: dict | None = None  # the URDF extras (Ia_, b_) of the nearest feasible point
     regularisation: dict = field(default_factory=dict)
     plausibility: list = field(default_factory=list)
     #: rotor candidates: their coefficients (column order of ``rotor``) and the candidates
@@ -588,6 +589,7 @@ def consistent_identification(regressor, robot, A, b, n_extra: int, R_full=None,
         lo[n_extra - len(rotor) + k], hi[n_extra - len(rotor) + k] = 0.0, r.upper
     pis, cs, solver = consistent_fit(None, None, K, prior, n_links, n_extra, R_full=R_full, c_lower=lo, c_upper=hi)
     nearest = pis[:10 * n_links].reshape(n_links, 10)
+    nearest_extras = {nm: float(v) for nm, v in zip(names[10 * n_links:], pis[10 * n_links:])}
     _check_psd(nearest, solver, "nearest feasible point")
     prior_links = prior[:10 * n_links].reshape(n_links, 10)
     extents, sources = link_extents(regressor, bodies, prior_links)
@@ -612,7 +614,7 @@ def consistent_identification(regressor, robot, A, b, n_extra: int, R_full=None,
     extras = {nm: float(v) for nm, v in zip(names[10 * n_links:], pis[10 * n_links:])}
     extras.update({f"Ia_{r.name}": float(v) for r, v in zip(rotor, cs[n0:])})
     return ConsistentResult(theta=theta, pi=links, body_names=bodies, min_eig=eig, solver=solver, extras=extras,
-                            nearest_pi=nearest, regularisation=info,
+                            nearest_pi=nearest, nearest_extras=nearest_extras, regularisation=info,
                             plausibility=plausibility_report(links, prior_links, bodies, extents),
                             rotor_theta=np.asarray(cs[n0:], float), rotor=list(rotor))
 
