@@ -512,7 +512,9 @@ class ConsistentResult:
     body_names: list[str]
     min_eig: list[float]  # smallest eigenvalue of every J_i (>= -tol)
     solver: str
-    extras: dict | None = None  # reflected inertias / damping of the URDF's transmissions + rotor candidates
+    #: reflected inertias / damping of the URDF's transmissions, and the rotor candidates' Ia_<joint>
+    #: (the replay's plant gets both: ``set_plant_inertias``)
+    extras: dict | None = None
     #: (nb, 10) the nearest feasible point (program 1), before the regularisation
     nearest_pi: np.ndarray | None = None
     nearest_extras: dict | None = None  # the URDF extras (Ia_, b_) of the nearest feasible point
@@ -530,9 +532,13 @@ class ConsistentResult:
         return [r["link"] for r in self.plausibility if not r["plausible"]]
 
     def as_dict(self):
+        # the rotor candidates are listed under "rotor_candidates", not "extras": the identified
+        # model's base values (theta_base = K pi) do not hold them, and the export writes "extras"
+        # into the URDF (model_repair.export), which must stay the model's own arm
+        cand = {f"Ia_{r.name}" for r in self.rotor}
         d = {"bodies": _bodies(self.body_names, self.pi),
              "min_pseudo_inertia_eig": [float(x) for x in self.min_eig], "solver": self.solver,
-             "extras": self.extras or {}}
+             "extras": {k: v for k, v in (self.extras or {}).items() if k not in cand}}
         if self.nearest_pi is not None:
             d["nearest_feasible_bodies"] = _bodies(self.body_names, self.nearest_pi)
         d["regularisation"] = self.regularisation
