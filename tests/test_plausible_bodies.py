@@ -335,3 +335,15 @@ def test_the_replays_plant_gets_the_rotor_candidate(rotor_case):
     C.set_plant_inertias(plant, ctx, ["link1", "link2"], links, {"Ia_joint2": 0.01})
     dM = plant.CalcMassMatrix(ctx) - M0
     assert dM == pytest.approx(np.diag([0.0, 0.01]), abs=1e-12)
+
+
+def test_a_massless_link_gets_a_small_prior_from_its_neighbours_scale():
+    links = np.zeros((3, 10))
+    links[0, [0, 4, 5, 6]] = [2.0, 0.02, 0.02, 0.01]  # 2 kg, a body with a proper inertia
+    links[1, [0, 4, 5, 6]] = [4.0, 0.05, 0.05, 0.02]
+    # link 2: massless tool frame (J0 = 0)
+    J0s, floored = C.prior_pseudo_inertias(links, [0.2, 0.3, 0.1])
+    assert floored == [2]
+    assert np.linalg.eigvalsh(J0s[2]).min() > 0
+    assert J0s[2][3, 3] == pytest.approx(C.PRIOR_FLOOR * 3.0)  # 1 % of the median neighbour mass (3 kg)
+    assert np.array_equal(J0s[0], C.pseudo_inertia(links[0])) and np.array_equal(J0s[1], C.pseudo_inertia(links[1]))
