@@ -278,6 +278,31 @@ def _md_errors(rep: dict) -> list[str]:
         c = rep["consistent"]
         L.append(row(f"repaired, physically consistent ({c['solver']})", [_num(x, ".4f") for x in c["rms_fit"]],
                      [_num(x, ".4f") for x in c["rms_validate"]]))
+        L += _md_bodies(c)
+    return L
+
+
+def _md_bodies(c: dict) -> list[str]:
+    """The consistent fit's bodies (regularised toward the URDF) beside the nearest feasible point's."""
+    rows, near = c.get("plausibility") or [], c.get("nearest_feasible_bodies") or {}
+    if not rows:
+        return []
+    reg = c.get("regularisation") or {}
+    how = ("log-det divergence to the URDF, misfit within its chi-square spread "
+           f"({_num(reg.get('level'), '.0%')})" if reg.get("applied") else "nearest feasible point")
+    L = ["", f"Physically consistent bodies ({how}); the replay uses these:", "",
+         "| link | mass [kg] | URDF [kg] | nearest feasible [kg] | COM from origin [m] | extent [m] | plausible |",
+         "|---|---|---|---|---|---|---|"]
+    for r in rows:
+        nf = near.get(r["link"], {}).get("mass")
+        L.append(f"| {r['link']} | {_num(r['mass'], '.4g')} | {_num(r['mass_urdf'], '.4g')} | {_num(nf, '.4g')} | "
+                 f"{_num(r['com_distance'], '.3g')} | {_num(r['extent'], '.3g')} | "
+                 f"{'yes' if r['plausible'] else 'no: ' + r['warning']} |")
+    for rc in c.get("rotor_candidates") or []:
+        L.append(f"- rotor inertia candidate {rc['name']} (gear ratio {_num(rc['gear_ratio'], '.4g')}): "
+                 f"reflected {_num(rc['reflected_inertia'], '.4g')} kg m^2")
+    if c.get("replay_trust"):
+        L += ["", c["replay_trust"][0].upper() + c["replay_trust"][1:] + "."]
     return L
 
 

@@ -547,13 +547,29 @@ def consistent_fit(inp: Inputs, effects, weights, cz=None):
 
 
 def _consistent_fit(inp: Inputs, effects, weights, cz=None):
-    from robust_drake.identification.consistency import consistent_identification
+    """The regularised consistent fit (``consistency`` module docstring) of ``effects`` plus a
+    reflected-inertia candidate on every geared joint the model has none for (``rotor_candidates``,
+    columns after the effects'); the misfit allowance uses the weighted equation rows in use and
+    the integrated correlation time of the model's (least-squares) equation-error residual."""
+    from robust_drake.identification.consistency import (consistent_identification, integrated_correlation,
+                                                         rotor_candidates)
+    from robust_drake.model_repair.effects import RotorInertia
 
+    rotor = rotor_candidates(inp.regressor, inp.robot, effects)
+    effs = list(effects) + [RotorInertia(r.joint) for r in rotor]
     # R of [W Y | W tau] (IV: of [P_WZ W Y | W tau]) by row blocks, not the joined copies (fitting.py)
-    R = inp.cf.qr_r(effects, weights, left=cz)
+    R = inp.cf.qr_r(effs, weights, left=cz)
+    p = R.shape[1] - 1
+    x = np.linalg.lstsq(R[:p, :p], R[:p, p], rcond=None)[0]
+    w = np.asarray(weights, float)
+    resid = (inp.cf.data.tau - inp.cf.explicit_prediction(effs, x)) * w[None, :]
+    rows = int(inp.cf.keep.sum()) if inp.cf.keep is not None else int(inp.cf.data.N * inp.cf.data.n)
     p_base = len(inp.regressor.base_names)
-    # extras = friction + effect columns, which follow the base block
-    return consistent_identification(inp.regressor, inp.robot, None, None, R.shape[1] - 1 - p_base, R_full=R)
+    # extras = friction + effect columns (+ rotor candidates), which follow the base block
+    res = consistent_identification(inp.regressor, inp.robot, None, None, p - p_base, R_full=R, rows=rows,
+                                    inflation=integrated_correlation(resid, inp.cf.data.segment), rotor=rotor)
+    res.rotor_effects = effs[len(effects):]
+    return res
 
 
 @dataclass
@@ -564,6 +580,9 @@ class Consistent:
 
 
 def consistent_fits(inp: Inputs, base: Baseline, est: Estimator, sel: Selection, opts, log) -> Consistent:
+    """Consistent fits of the baseline and the final model; the report section carries the final
+    one's bodies (regularised toward the URDF), the nearest feasible point's, the plausibility check
+    per link (a warning naming each implausible link) and which links the replay cannot trust."""
     if not opts.consistent:
         return Consistent()
     try:
@@ -572,10 +591,22 @@ def consistent_fits(inp: Inputs, base: Baseline, est: Estimator, sel: Selection,
     except RobustDrakeError as exc:
         inp.notes.append(f"physically consistent fit not available: {exc}")
         return Consistent()
-    r_cf = inp.cf.data.tau - predict_tau(inp.cf, sel.chosen, cons_final.theta)
-    r_cv = inp.val.tau - predict_tau(inp.cv, sel.chosen, cons_final.theta)
+    rot = getattr(cons_final, "rotor_effects", [])
+    th = np.concatenate([cons_final.theta, cons_final.rotor_theta])
+    r_cf = inp.cf.data.tau - predict_tau(inp.cf, list(sel.chosen) + rot, th)
+    r_cv = inp.val.tau - predict_tau(inp.cv, list(sel.chosen) + rot, th)
     log(f"consistent ({cons_final.solver}): rms validate {np.round(rms(r_cv), 4)}")
-    return Consistent(cons_base, cons_final, {"rms_fit": inp.cf.rms(r_cf).tolist(), "rms_validate": rms(r_cv), **cons_final.as_dict()})
+    bad = cons_final.implausible
+    # replay_guard refits on every attempt: only the last attempt's bodies are warned about
+    inp.warnings[:] = [w for w in inp.warnings if not w.startswith("physically consistent body: ")]
+    for row in cons_final.plausibility:
+        if row["warning"]:
+            inp.warnings.append(f"physically consistent body: {row['warning']}")
+    rep = {"rms_fit": inp.cf.rms(r_cf).tolist(), "rms_validate": rms(r_cv), **cons_final.as_dict(),
+           "replay_untrusted_links": bad,
+           "replay_trust": ("the replay's body is not trusted on link(s) " + ", ".join(bad)
+                            + " (implausible: see plausibility)") if bad else "every link's body passed the plausibility check"}
+    return Consistent(cons_base, cons_final, rep)
 
 
 def friction_of(theta, names, n):
