@@ -85,7 +85,9 @@ class PhysicalContext:
     joint; ``tau_max``: max |tau_j| in the data [N m]; ``duration``: the longest run [s] (time
     since the run's t = 0); ``band_hz``: (2 / T_file, f_c) [Hz], the band a periodic residual can
     be told from a drift and is not removed by the filter; ``max_delay``: the delay bound [s] from
-    the robot description (None: the description declares no physical source of delay)."""
+    the robot description (None: the description declares no physical source of delay);
+    ``configurations``: joint positions of the data [rad or m] (a configuration-dependent
+    torque's peak over the data)."""
 
     coulomb: tuple | None = None
     viscous: tuple | None = None
@@ -1311,9 +1313,9 @@ class ConfigurationDependent(Effect):
         ``test == "configuration_dependence"`` in ``diagnostics``), its basis without the terms in
         the span of that joint's gravity columns (``robot`` given: :func:`gravity_aliases`)."""
         joints = sorted({d["joint"] for d in diagnostics or [] if d.get("test") == "configuration_dependence"})
+        prismatic, reg = _joint_kinds(robot, n_joints) if joints else ((), None)
         out = []
         for j in joints:
-            prismatic, reg = _joint_kinds(robot, n_joints)
             terms = configuration_terms(n_joints, j, prismatic)
             if reg is not None:
                 drop = set(gravity_aliases(reg, j, terms))
