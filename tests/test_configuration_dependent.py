@@ -170,3 +170,13 @@ def test_cogging_grid_covers_1_to_12_and_finds_a_5_per_rev_cogging(tmp_path):
     assert [(e["joint"], e["parameters"]["harmonic"]) for e in cog] == [(1, 5)], [e["label"] for e in cog]
     assert cog[0]["parameters"]["amplitude"] == pytest.approx(0.06, rel=0.15)
     assert "configuration_dependent" in EFFECTS
+
+
+def test_a_spring_on_the_joints_own_angle_stays_a_spring(tmp_path):
+    """The residual of the elbow then also depends on the other angles along the motion (the kind
+    is offered), but its own angle explains it: ``spring[2]`` is named, not this kind."""
+    fit, val = _puma_case(str(tmp_path), [("spring", 2, {"stiffness": 3.0})])
+    res = rd.repair(fit, robot=PUMA, validate=val, plots=False, replay=False)
+    assert res.report["residual"]["baseline"]["configuration_dependence"]  # offered
+    assert [(e["kind"], e["joint"]) for e in res["effects"]] == [("spring", 2)], [e["label"] for e in res["effects"]]
+    assert res["effects"][0]["parameters"]["stiffness"] == pytest.approx(3.0, rel=0.05)

@@ -1423,7 +1423,8 @@ EFFECTS: dict[str, type[Effect]] = {
 
 #: kinds offered only where a residual diagnostic found their structure (``candidates`` needs
 #: ``diagnostics=``); they have no entry in ``simulated.HIDDEN_CASES`` but cases in
-#: ``simulated_cases.OUTSIDE_CASES``
+#: ``simulated_cases.OUTSIDE_CASES`` (``configuration_dependent``: the PUMA cable of
+#: tests/test_configuration_dependent.py, offered by ``residual.configuration_dependence``)
 DIAGNOSTIC_KINDS = ("periodic_disturbance", "dead_zone", "friction_drift", "configuration_dependent")
 
 
