@@ -68,7 +68,7 @@ def test_prismatic_terms_and_bad_input():
     q = np.array([[0.3, 0.2, 1.0]])
     np.testing.assert_allclose(eff.evaluate_columns(q)[0, 0], [0.2, 0.04, math.sin(1.0)])
     assert len(eff.column_names(3)) == 3 and eff.num_coef(3) <= 2 * 3 + 1
-    for bad in (dict(joint=None), dict(joint=1, terms="s1,c0"), dict(joint=1, terms="x0"), dict(joint=1, terms="")):
+    for bad in (dict(joint=None, terms="s1"), dict(joint=1, terms="s1,c0"), dict(joint=1, terms="x0"), dict(joint=1, terms="")):
         with pytest.raises(RobustDrakeError):
             make_effect("configuration_dependent", **bad)
     with pytest.raises(RobustDrakeError, match="joint 3"):
@@ -180,3 +180,21 @@ def test_a_spring_on_the_joints_own_angle_stays_a_spring(tmp_path):
     assert res.report["residual"]["baseline"]["configuration_dependence"]  # offered
     assert [(e["kind"], e["joint"]) for e in res["effects"]] == [("spring", 2)], [e["label"] for e in res["effects"]]
     assert res["effects"][0]["parameters"]["stiffness"] == pytest.approx(3.0, rel=0.05)
+
+
+def test_on_every_joint_each_joint_gets_its_own_basis_and_coefficients():
+    eff = make_effect("configuration_dependent", None)
+    assert eff.num_coef(3) == 3 * 4
+    coef = np.arange(1.0, 13.0) / 10
+    rng = np.random.default_rng(5)
+    X = np.hstack([rng.uniform(-3, 3, (4, 3)), np.zeros((4, 3))])
+    blk = eff.block(3, eff.parameters(coef))
+    for x in X:
+        q = x[:3]
+        phi = {0: [math.sin(q[1]), math.cos(q[1]), math.sin(q[2]), math.cos(q[2])],
+               1: [math.sin(q[0]), math.cos(q[0]), math.sin(q[2]), math.cos(q[2])],
+               2: [math.sin(q[0]), math.cos(q[0]), math.sin(q[1]), math.cos(q[1])]}
+        by_hand = [-np.dot(coef[4 * j:4 * j + 4], phi[j]) for j in range(3)]
+        np.testing.assert_allclose(_eval_block(blk, x), by_hand, atol=1e-12)
+    from robust_drake.excitation.information import check_effect_kinds
+    assert check_effect_kinds(["configuration_dependent"], 3)[0].num_coef(3) == 12

@@ -1201,7 +1201,9 @@ class ConfigurationDependent(Effect):
     products q_k q_l would give n^2 columns for the few hundred independent samples of a log.
 
     Shape ``terms``: the basis as tokens (``"s0,c0,s1,c1"``: sin q_0, cos q_0, ...); None is
-    :func:`configuration_terms` of the arm. :meth:`candidates` drops every term that lies in the
+    :func:`configuration_terms` of the arm. ``joint=None`` (the excitation designer's
+    ``--for-effects``): the default basis on every joint, separate coefficients ``"j<j>:sin(q0)"``.
+    :meth:`candidates` drops every term that lies in the
     span of the rigid-body gravity columns of joint j (:func:`gravity_aliases`), so the
     candidate never duplicates gravity: on a serial arm joint j's gravity torque depends on its
     own angle in every term (the first joint of a vertical-plane arm: a sin q_0 + b cos q_0 +
@@ -1221,9 +1223,10 @@ class ConfigurationDependent(Effect):
 
     def __init__(self, joint: int | None = None, **shape):
         super().__init__(joint, **shape)
-        if self.joint is None:
-            raise RobustDrakeError("configuration_dependent acts on one joint: give its joint")
         if self.shape["terms"] is not None:
+            if self.joint is None:
+                raise RobustDrakeError("configuration_dependent: terms need a joint (joint=None takes the "
+                                       "default basis on every joint)")
             self.shape["terms"] = ",".join(f"{f}{k}" for f, k in parse_terms(self.shape["terms"]))
             if any(f in "sc" and k == self.joint for f, k in parse_terms(self.shape["terms"])):
                 raise RobustDrakeError("configuration_dependent: sin / cos of the joint's own angle are the "
@@ -1231,25 +1234,39 @@ class ConfigurationDependent(Effect):
         self.reference_q = None  # configurations of the first data the columns were built on
 
     def terms(self, n: int) -> list[tuple[str, int]]:
+        """The parsed basis of the effect's joint (joint given)."""
         t = self.shape["terms"]
         return parse_terms(t) if t is not None else parse_terms(configuration_terms(n, self.joint))
 
+    def layout(self, n: int) -> list[tuple[int, list[tuple[str, int]]]]:
+        """[(joint, parsed terms)]: one entry, or with joint=None the default basis of every joint
+        (separate coefficients per joint, as the library's per-joint kinds)."""
+        if self.joint is None:
+            return [(j, parse_terms(configuration_terms(n, j))) for j in range(n)] if n > 1 else []
+        self.joints(n)
+        return [(self.joint, self.terms(n))]
+
     def term_labels(self, n: int) -> list[str]:
-        return [_TERM_LABELS[f].format(k=k) for f, k in self.terms(n)]
+        """Coefficient names: the term's label (``"sin(q0)"``), ``"j<j>:"`` before it with joint=None."""
+        pre = (lambda j: f"j{j}:") if self.joint is None else (lambda j: "")
+        return [pre(j) + _TERM_LABELS[f].format(k=k) for j, ts in self.layout(n) for f, k in ts]
 
     def num_coef(self, n: int) -> int:
-        self.joints(n)
-        return len(self.terms(n))
+        return sum(len(ts) for _, ts in self.layout(n))
 
     def column_names(self, n: int) -> list[str]:
-        return [f"{self.kind}[{self.joint}]:{lab}" for lab in self.term_labels(n)]
+        labels = iter(self.term_labels(n))
+        return [f"{self.kind}[{j}]:{next(labels).split(':')[-1]}" for j, ts in self.layout(n) for _ in ts]
 
     def evaluate_columns(self, q, qd=None, qdd=None, tau=None, taud=None) -> np.ndarray:
         """(N, n, m) columns: phi(q) (eq. CD1) on joint j's rows, zero elsewhere."""
         q = np.atleast_2d(np.asarray(q, dtype=float))
         N, n = q.shape
         cols = np.zeros((N, n, self.num_coef(n)))
-        cols[:, self.joint, :] = term_values(self.terms(n), q)
+        i = 0
+        for j, ts in self.layout(n):
+            cols[:, j, i:i + len(ts)] = term_values(ts, q)
+            i += len(ts)
         return cols
 
     def columns(self, data):
@@ -1259,13 +1276,14 @@ class ConfigurationDependent(Effect):
 
     def _n_from(self, coef) -> int:
         if self.shape["terms"] is not None:
-            return max(k for _, k in self.terms(0)) + 1
-        return len(coef) // 2 + 1  # the default basis has 2 (n - 1) terms on a revolute arm
+            return max([k for _, k in self.terms(0)] + [self.joint]) + 1
+        m = len(coef)  # default basis: 2 (n - 1) terms per joint (all n joints with joint=None)
+        return m // 2 + 1 if self.joint is not None else int(round((1 + math.sqrt(1 + 2 * m)) / 2))
 
     def torque(self, coef, q) -> np.ndarray:
-        """Pure: f_e,j(q) (N,) [N m] at configurations q (N, n) (eq. CD1, plant side)."""
+        """Pure: the plant-side torque f_e(q) (N, n) [N m] at configurations q (N, n) (eq. CD1)."""
         q = np.atleast_2d(np.asarray(q, dtype=float))
-        return -(term_values(self.terms(q.shape[1]), q) @ np.asarray(coef, dtype=float))
+        return -(self.evaluate_columns(q) @ np.asarray(coef, dtype=float))
 
     def parameters(self, coef, q=None) -> dict:
         """Coefficients by term, ``terms``, and ``explained_rms`` / ``peak`` [N m] over ``q``
@@ -1276,11 +1294,15 @@ class ConfigurationDependent(Effect):
         if len(coef) != len(labels):
             raise RobustDrakeError(f"{self.name}: expected {len(labels)} coefficients, got {len(coef)}")
         out = {lab: float(c) for lab, c in zip(labels, coef)}
-        out["terms"] = ",".join(f"{f}{k}" for f, k in self.terms(n))
+        if self.joint is not None:
+            out["terms"] = ",".join(f"{f}{k}" for f, k in self.terms(n))
         q = self.reference_q if q is None else q
-        if q is not None and np.atleast_2d(q).shape[1] >= n:
-            f = self.torque(coef, q)
-            out.update(explained_rms=float(np.sqrt(np.mean(f**2))), peak=float(np.max(np.abs(f))))
+        if q is not None and np.atleast_2d(q).shape[1] == n:
+            f = self.torque(coef, q)[:, [j for j, _ in self.layout(n)]]
+            rms, peak = np.sqrt(np.mean(f**2, axis=0)), np.max(np.abs(f), axis=0)
+            one = self.joint is not None
+            out.update(explained_rms=float(rms[0]) if one else rms.tolist(),
+                       peak=float(peak[0]) if one else peak.tolist())
         return out
 
     def coef_from_parameters(self, parameters: dict, n: int) -> np.ndarray:
@@ -1290,19 +1312,17 @@ class ConfigurationDependent(Effect):
         return np.asarray([float(parameters[lab]) for lab in self.term_labels(n)])
 
     def admissible(self, parameters, context=None):
-        """The peak of f_e,j over the data's configurations (``context.configurations``, else
-        the reported ``peak``) <= max |tau_j| the joint carried."""
-        if context is None or context.tau_max is None:
+        """The peak of f_e,j over the data's configurations (``context.configurations``) <= max
+        |tau_j| the joint carried (every acting joint)."""
+        if context is None or context.tau_max is None or context.configurations is None:
             return ""
-        lim = float(context.tau_max[self.joint])
         q = context.configurations
-        if q is not None:
-            peak = float(np.max(np.abs(self.torque(self.coef_from_parameters(parameters, q.shape[1]), q))))
-        elif "peak" in parameters:
-            peak = float(parameters["peak"])
-        else:
+        js = [j for j, _ in self.layout(q.shape[1])]
+        peak = np.max(np.abs(self.torque(self.coef_from_parameters(parameters, q.shape[1]), q)[:, js]), axis=0)
+        lim = np.asarray(context.tau_max, float)[js]
+        if np.all(peak <= lim + 1e-12):
             return ""
-        return "" if peak <= lim + 1e-12 else f"peak torque {peak:.4g} N m above max |tau| {lim:.4g} N m"
+        return f"peak torque {np.round(peak, 4).tolist()} N m above max |tau| {np.round(lim, 4).tolist()} N m"
 
     def block(self, n, parameters, **kw):
         return ConfigurationDependentBlock(self, n, self.coef_from_parameters(parameters, n))
@@ -1375,19 +1395,20 @@ def gravity_aliases(regressor, joint: int, terms, samples: int = 256, seed: int 
 
 class ConfigurationDependentBlock(LeafSystem):
     """Stateless block of :class:`ConfigurationDependent`: input ``state`` (2n), output
-    ``generalized_force`` (n), zero except on joint j: -sum_i c_i phi_i(q) [N m] (eq. CD1).
+    ``generalized_force`` (n), zero except on the acting joint(s) j: -sum_i c_i phi_i(q) [N m]
+    (eq. CD1).
     Its output depends on the state input only (no time, no torque)."""
 
     def __init__(self, effect: ConfigurationDependent, n: int, coef):
         super().__init__()
-        self.n, self.j = n, int(effect.joint)
-        self.terms = effect.terms(n)
+        self.n = n
         self.coef = np.asarray(coef, dtype=float).copy()
-        if len(self.coef) != len(self.terms):
-            raise RobustDrakeError(f"{effect.name}: {len(self.terms)} coefficients expected, got {len(self.coef)}")
+        if len(self.coef) != effect.num_coef(n):
+            raise RobustDrakeError(f"{effect.name}: {effect.num_coef(n)} coefficients expected, got {len(self.coef)}")
         fun = {"s": math.sin, "c": math.cos, "l": float, "p": lambda x: x * x}
-        self._fun = [(fun[f], k, float(c)) for (f, k), c in zip(self.terms, self.coef)]
-        self.set_name(f"effect_{effect.kind}_{effect.joint}")
+        terms = [(j, fun[f], k) for j, ts in effect.layout(n) for f, k in ts]
+        self._fun = [(j, f, k, float(c)) for (j, f, k), c in zip(terms, self.coef)]
+        self.set_name(f"effect_{effect.kind}_{'all' if effect.joint is None else effect.joint}")
         self._state = self.DeclareVectorInputPort("state", 2 * n)
         self.DeclareVectorOutputPort("generalized_force", n, self._calc,
                                      prerequisites_of_calc={self.input_port_ticket(self._state.get_index())})
@@ -1395,7 +1416,8 @@ class ConfigurationDependentBlock(LeafSystem):
     def _calc(self, context, output):
         x = self._state.Eval(context)
         out = np.zeros(self.n)
-        out[self.j] = -sum(c * f(float(x[k])) for f, k, c in self._fun)
+        for j, f, k, c in self._fun:
+            out[j] -= c * f(float(x[k]))
         output.SetFromVector(out)
 
 
