@@ -240,6 +240,9 @@ def plausibility(kind: str, params: dict, robot: str) -> str:
                 f"reach the joint (share lost {p.get('share', np.nan):.2f})")
     if kind == "friction_drift":
         return "friction changing over the run (warming up: lubricant, seals, brake)"
+    if kind == "configuration_dependent":
+        return (f"torque depending on other joints' angles ({params.get('terms')}; {p.get('explained_rms', np.nan):.3g} "
+                "N m RMS over the fit data): a cable or hose dragged by the other links, or a coupled spring")
     return kind
 
 

@@ -86,6 +86,23 @@ def state_dependence(data: IdentData, residual: np.ndarray, bins: int = BINS) ->
     return rows
 
 
+def configuration_dependence(dependence: list[dict], n: int, alpha: float = ALPHA) -> list[dict]:
+    """Rows ``test = "configuration_dependence"`` (joint j, variable q[k], eta2, p, level) where
+    the residual of joint j depends on the angle of another joint k != j: the F test of
+    :func:`state_dependence` (N_eff samples) at level ``alpha`` / (n (n - 1)) (Bonferroni over
+    the ordered joint pairs). What offers ``configuration_dependent[j]`` to the selection (which
+    then decides on held-out error); it does not set ``unexplained_structure``."""
+    level = alpha / max(n * (n - 1), 1)
+    out = []
+    for d in dependence:
+        v = d["variable"]
+        if not v.startswith("q[") or int(v[2:-1]) == d["joint"] or not d["p"] < level:
+            continue
+        out.append({"test": "configuration_dependence", "joint": d["joint"], "variable": v,
+                    "eta2": round(d["eta2"], 4), "p": float(d["p"]), "level": level})
+    return out
+
+
 def ljung_box(x: np.ndarray, lags: int = LAGS) -> tuple[float, float, float]:
     """(Q, p, rho_1) of the Ljung-Box test."""
     from scipy.stats import chi2
@@ -150,7 +167,9 @@ def analyse(data: IdentData, residual: np.ndarray, eta_min: float = ETA_MIN, alp
     ``dead_band`` with the torque range, ``generalization`` when ``validate_residual`` is given),
     then the state-dependence rows (``test`` = ``state_dependence``: joint, variable, eta2).
     ``validation`` = (IdentData, residual) of the validation data: the reversal test runs there
-    too (``test`` = ``reversal`` with ``data`` = ``validation``)."""
+    too (``test`` = ``reversal`` with ``data`` = ``validation``). ``configuration_dependence``:
+    the rows of :func:`configuration_dependence` (a joint's residual against other joints'
+    angles), which offer the ``configuration_dependent`` kind."""
     diag = diagnose(data, residual, validate_residual, validation=validation)
     dep = state_dependence(data, residual)
     white = whiteness(data, residual)
@@ -164,6 +183,7 @@ def analyse(data: IdentData, residual: np.ndarray, eta_min: float = ETA_MIN, alp
         "where": diag + [{"test": "state_dependence", "joint": d["joint"], "variable": d["variable"],
                           "eta2": round(d["eta2"], 4)} for d in where[:6]],
         "diagnostics": diag,
+        "configuration_dependence": configuration_dependence(dep, data.n, alpha),
         "coloured": [{"joint": w["joint"], "rho1": round(w["rho1"], 3)} for w in coloured],
         "state_dependence_top": [{k: (round(v, 5) if isinstance(v, float) else v) for k, v in d.items()} for d in dep[:8]],
         "whiteness": white,

@@ -355,7 +355,7 @@ def select_effects(inp: Inputs, base: Baseline, est: Estimator, opts, log) -> Se
 
     # the kinds for structure outside the library enter the pool only where a diagnostic of the
     # baseline residual fired, on that joint / at that frequency (effects.DIAGNOSTIC_KINDS)
-    diag = base.analysis.get("diagnostics", [])
+    diag = base.analysis.get("diagnostics", []) + base.analysis.get("configuration_dependence", [])
     cands = all_candidates(inp.fit.n, kinds=opts.kinds, robot=opts.robot, diagnostics=diag)
     sel = forward_select(inp.cf, cands, min_gain=opts.min_gain, max_effects=opts.max_effects, progress=log,
                          weights=base.weights, icache=est.instruments(),
