@@ -113,8 +113,9 @@ def verdict(res: RepairResult) -> dict:
         what = " and ".join(w for w, k in (("every effect tried", tried),
                                           ("the switch to instrumental variables",
                                            any(d["kind"] == "estimator" for d in res.guard.dropped))) if k)
-        why = (f"nothing kept: {what or 'everything tried'} made a joint's validation or the replay worse "
-               "than the least-squares baseline (see rejected_effects)")
+        why = (f"nothing kept: {what or 'everything tried'} made a joint's validation"
+               + (" or the replay" if replayed else "") + " worse than the least-squares baseline (see rejected_effects)"
+               + ("" if replayed else "; no replay ran"))
     if named:
         why += f"; named from the URDF comparison (not part of the fitted model): {', '.join(named)}"
     return {"verdict": "repaired" if kept else "no_improvement", "verdict_reason": why}
@@ -177,12 +178,50 @@ def build_report(res: RepairResult) -> dict:
         "model": model.to_json(),
         "baseline_model": base_model.to_json(),
     }
+    annotate_effects(report["effects"], inp.fit.dt)
     flagged = bool((res.setup_change or {}).get("flagged"))
     for e in report["effects"]:  # claimed: kept AND validated on a run that matches the fit run
         e["claimed"] = not flagged
         if flagged:
             e["reason"] += "; not claimed: the validation run does not match the fit run's setup (setup_change)"
     return strict(report)
+
+
+def grid_edge(kind: str, parameters: dict) -> list[str]:
+    """The shape parameters of an effect of ``kind`` chosen at the smallest or largest value of
+    its kind's candidate grid (``effects.EFFECTS[kind].shape_grid``, grids of two or more values):
+    the data may want a value beyond the grid, so the value is a bound, not a physical estimate.
+    Returns lines such as ``"transition_velocity = 1 at the edge of its grid [0.1, 1]"``."""
+    from robust_drake.model_repair.effects import EFFECTS
+
+    cls = EFFECTS.get(kind)
+    out = []
+    for name in sorted({k for g in getattr(cls, "shape_grid", None) or [] for k in g}):
+        vals = sorted({float(g[name]) for g in cls.shape_grid if name in g})
+        v = parameters.get(name)
+        if len(vals) >= 2 and isinstance(v, (int, float)) and (np.isclose(v, vals[0]) or np.isclose(v, vals[-1])):
+            out.append(f"{name} = {v:g} at the edge of its grid [{vals[0]:g}, {vals[-1]:g}]")
+    return out
+
+
+def annotate_effects(rows: list[dict], dt: float) -> None:
+    """Per kept effect: ``grid_edge`` (:func:`grid_edge`; the plausibility text then says so
+    first), and for a time delay ``delay_samples`` = delay / dt (the fit data's mean sample
+    period [s]) with its resolution: the delay is a continuous coefficient of the first-order
+    expansion tau(t - d) ~ tau - d dtau/dt, not a grid value, valid for d of about a sample period
+    or less."""
+    for row in rows:
+        edge = grid_edge(row["kind"], row.get("parameters") or {})
+        row["grid_edge"] = edge
+        if edge:
+            row["plausibility"] = ("AT THE EDGE OF ITS GRID (" + "; ".join(edge) + "): a bound of the search, not a "
+                                   "physical estimate; " + row.get("plausibility", ""))
+        d = (row.get("parameters") or {}).get("delay")
+        if row["kind"] == "time_delay" and isinstance(d, (int, float)):
+            row["delay_samples"] = float(d / dt)
+            row["plausibility"] = (row.get("plausibility", "") + f"; {d * 1e3:.3g} ms = {d / dt:.2g} sample periods "
+                                   f"(mean stamp spacing {dt * 1e3:.3g} ms), estimated as a continuous coefficient "
+                                   "(first-order expansion, no delay grid)")
 
 
 def _setup_where(sc: dict | None) -> list[dict]:
