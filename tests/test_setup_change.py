@@ -123,3 +123,22 @@ def test_exact_urdf_is_not_a_significant_shift_and_a_payload_is(tmp_path):
     _, inp, base = _setup_change(fit, val)
     nom = compare_with_nominal(inp.cf, inp.cv, inp.regressor, base.fit, [], [], base.weights)
     assert nom["significant"] and nom["chi2"] > nom["chi2_limit"]
+
+
+def test_exact_urdf_with_unidentifiable_directions_is_not_significant(tmp_path):
+    """serial7 whose last two joints move 2 mrad: six directions are unidentifiable. Over all 48
+    base parameters the exact URDF read chi^2 163-262 against the 99 % limit 73.7 (measured on
+    seeds 0-2 before issue 21); over the identifiable directions it must stay below the limit."""
+    from robust_drake.model_repair.battery import _sim_kwargs
+
+    kw = _sim_kwargs("serial7")
+    kw["excitation"] = dict(kw["excitation"], amplitude=[0.6] * 5 + [0.002, 0.002])
+    paths = [str(tmp_path / f"s{s}.csv") for s in (0, 1)]
+    for s, p in enumerate(paths):
+        simulate_experiment("serial7", [], duration=6.0, seed=s, out_csv=p, **kw)
+    opts = RepairOptions(robot="serial7")
+    inp = S.load_inputs(paths[:1], paths[1:], opts, lambda m: None)
+    base = S.fit_baseline(inp, opts, lambda m: None)
+    nom = compare_with_nominal(inp.cf, inp.cv, inp.regressor, base.fit, [], [], base.weights)
+    assert base.fit.unidentifiable and nom["unidentified_directions"] > 0
+    assert not nom["significant"] and nom["chi2"] < nom["chi2_limit"], (nom["chi2"], nom["chi2_all_parameters"])
