@@ -69,6 +69,8 @@ def test_no_replay_verdict_and_validation_wording(tmp_path):
     assert "replay is not worse" not in rep["verdict_reason"]
     if rep["verdict"] == "repaired":
         assert "no replay ran" in rep["verdict_reason"]
+    if rep["estimator"].get("hausman", {}).get("significant"):  # IV chosen without its replay check: said
+        assert "Hausman test alone" in rep["estimator"]["decided_by"]
     md = open(tmp_path / "out" / "report.md").read()
     assert f"validation samples: {rep['samples_validate']} (from 1 validation file)" in md
 

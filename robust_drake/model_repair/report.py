@@ -178,13 +178,23 @@ def build_report(res: RepairResult) -> dict:
         "model": model.to_json(),
         "baseline_model": base_model.to_json(),
     }
-    annotate_effects(report["effects"], inp.fit.dt)
+    _finish(report, res)
+    return strict(report)
+
+
+def _finish(report: dict, res: RepairResult) -> None:
+    """Effects annotated (:func:`annotate_effects`) and ``claimed`` (kept AND validated on a run
+    that matches the fit run's setup); the estimator says when the Hausman test alone decided."""
+    annotate_effects(report["effects"], res.inputs.fit.dt)
     flagged = bool((res.setup_change or {}).get("flagged"))
-    for e in report["effects"]:  # claimed: kept AND validated on a run that matches the fit run
+    for e in report["effects"]:
         e["claimed"] = not flagged
         if flagged:
             e["reason"] += "; not claimed: the validation run does not match the fit run's setup (setup_change)"
-    return strict(report)
+    est = report.get("estimator") or {}
+    if (est.get("hausman") or {}).get("significant") and "replay_fit" not in est:
+        est["decided_by"] = ("the Hausman test alone: the replay check of the fit data's motion did not run "
+                             "(needs the replay and the physically consistent fit on)")
 
 
 def grid_edge(kind: str, parameters: dict) -> list[str]:
@@ -438,6 +448,8 @@ def _md_estimator(rep: dict) -> list[str]:
             f"against LS (required < {_num(rf['required_ratio'], '.2f')})" if rf else "")
     else:
         verdict = "**not significant**"
+    if est.get("decided_by"):
+        verdict += f" (decided by {est['decided_by']})"
     return ["", "## Errors in variables (estimator)", "",
             "The regressor is built from positions differentiated twice; what those columns carry and "
             "the torque does not cause (motion through gear backlash at reversals, vibration, "
