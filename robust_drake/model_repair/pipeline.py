@@ -16,7 +16,9 @@
 
 plus diagnostics (selection steps, identifiability, residual tests, data summary, notes), the
 never-worse outcome (``"verdict": "repaired" | "no_improvement"``, ``"verdict_reason"``,
-``"never_worse"``, ``"rejected_effects"`` and ``effects[*].kept/reason``), ``"joint_names"`` (URDF,
+``"never_worse"``, ``"rejected_effects"`` and ``effects[*].kept/reason/claimed``), ``"setup_change"`` (the
+validation run against the fit run's own held-out error, ``diagnostics.setup_change_of``: when flagged the
+verdict is ``no_improvement`` and no effect is claimed), ``"joint_names"`` (URDF,
 joints numbered from 0 everywhere) and the identified models ``"model"`` / ``"baseline_model"``
 (:class:`~robust_drake.model_repair.model.IdentifiedModel.to_json`), which are what control
 takes. The stages are in ``stages.py``; rendering (report.md from the same dict) in ``report.py``.
