@@ -218,10 +218,7 @@ def solve_normal(G: np.ndarray, g: np.ndarray, residual_of, names: list[str], w:
         se[names.index(u)] = np.inf
     msgs = []
     if cond > COND_WARN or unident:
-        msgs.append(
-            f"poor excitation: condition number {cond:.3g} of the (column-normalised) regressor"
-            + (f"; unidentifiable parameters: {', '.join(unident)}" if unident else "")
-        )
+        msgs.append(poor_excitation_text(cond, unident))
         if warn:
             warnings.warn(msgs[-1], DataWarning, stacklevel=3)
     rms = np.sqrt(np.sum(resid**2 * used, axis=0) / np.maximum(used.sum(axis=0), 1.0))
@@ -229,6 +226,20 @@ def solve_normal(G: np.ndarray, g: np.ndarray, residual_of, names: list[str], w:
         theta=theta, names=list(names), se=se, sigma=rms, weights=w, cond=cond, rank=rank,
         unidentifiable=unident, residual=resid, rms=rms, N=N, rss_weighted=rss_w, warnings=msgs, cov=cov,
     )
+
+
+def poor_excitation_text(cond: float, unidentifiable: list[str]) -> str:
+    """The one-line poor-excitation warning: the condition number and how many parameters are
+    unidentifiable (their names, combinations with noise-level coefficients such as
+    ``54448.4*Iyz_link4``, are listed in the fit's ``unidentifiable``, not in the message).
+    Starts with :data:`POOR_EXCITATION` (the repair report keeps the first such warning only)."""
+    k = len(unidentifiable)
+    return (f"{POOR_EXCITATION}: condition number {cond:.3g} of the column-normalised regressor"
+            + (f"; {k} unidentifiable parameter{'s' if k > 1 else ''} (listed under identifiability)" if k else ""))
+
+
+#: first words of the poor-excitation warning
+POOR_EXCITATION = "poor excitation"
 
 
 def solve_wls(Y, tau, names, iterations: int = 2, tol: float = RANK_TOL, warn: bool = True,

@@ -184,4 +184,64 @@ def compare_joints(E_ref: np.ndarray, E_new: np.ndarray, ids: np.ndarray, level:
     return out
 
 
-__all__ = ["LEVEL", "MIN_BLOCKS", "BLOCK_CORRELATIONS", "PairedTest", "block_length", "block_ids", "paired_test", "holm", "compare_joints"]
+def _mean_variance(x: np.ndarray) -> float:
+    """Variance of the mean of block means ``x`` (B,): s^2 / B times (1 + 2 r_1), r_1 >= 0 the
+    lag-1 autocorrelation of neighbouring blocks (the blocks are a few correlation times long, so
+    neighbours still share a little; farther ones are taken as independent)."""
+    B = len(x)
+    y = x - x.mean()
+    den = float(y @ y)
+    r1 = max(0.0, float(y[:-1] @ y[1:]) / den) if den > 0 and B > 2 else 0.0
+    return den / (B - 1) / B * (1.0 + 2.0 * r1)
+
+
+def unpaired_test(e_ref: np.ndarray, ids_ref: np.ndarray, e_new: np.ndarray, ids_new: np.ndarray,
+                  level: float = LEVEL) -> PairedTest:
+    """Block comparison of squared-error series on two DIFFERENT row sets (no pairing): e.g. the
+    validation run's error (``e_new`` on its blocks ``ids_new``) against the fit run's own
+    out-of-sample error (``e_ref`` on ``ids_ref``, :func:`block_ids` of each side).
+
+    With the block means a_b (B_a blocks) and c_b (B_c blocks) of the two sides, the mean-square
+    ratio R = mean_b(c_b) / mean_b(a_b) is judged on the log scale (the two sides are
+    independent, so their spreads add; delta method):
+
+        se(log R)^2 = s_c^2 / (B_c cbar^2) + s_a^2 / (B_a abar^2),
+
+    s^2 the sample variance of each side's block means, with Welch-Satterthwaite degrees of
+    freedom  nu = se^4 / (u_c^2 / (B_c - 1) + u_a^2 / (B_a - 1)),  u = s^2 / (B xbar^2). The
+    two-sided ``level`` interval of R is exp(log R +- t_{nu,(1+level)/2} se) and, as in
+    :func:`paired_test`, ``estimate`` / ``low`` / ``high`` are the relative RMS change
+    sqrt(R) - 1, ``worse`` / ``better`` the one-sided decisions at (1 - level) / 2 (before any
+    multiple-comparison correction: :func:`holm` over joints is the caller's). ``blocks`` is
+    min(B_a, B_c). Fewer than ``MIN_BLOCKS`` blocks on either side or a zero mean: undecided."""
+    from scipy import stats
+
+    a = _block_means(np.asarray(e_ref, float), np.asarray(ids_ref))
+    c = _block_means(np.asarray(e_new, float), np.asarray(ids_new))
+    Ba, Bc = len(a), len(c)
+    rms_ref = float(np.sqrt(np.mean(a))) if Ba else float("nan")
+    rms_new = float(np.sqrt(np.mean(c))) if Bc else float("nan")
+    block = int(round(np.sum(np.asarray(ids_ref) >= 0) / Ba)) if Ba else 0
+    if min(Ba, Bc) < MIN_BLOCKS or a.mean() <= 0 or c.mean() <= 0:
+        est = rms_new / rms_ref - 1.0 if Ba and Bc and rms_ref > 0 else float("nan")
+        return PairedTest(est, -math.inf, math.inf, level, 1.0, 1.0, False, False, rms_ref, rms_new,
+                          min(Ba, Bc), block)
+    ua = _mean_variance(a) / float(a.mean()) ** 2
+    uc = _mean_variance(c) / float(c.mean()) ** 2
+    logR = math.log(float(c.mean()) / float(a.mean()))
+    se = math.sqrt(ua + uc)
+    d = lambda x: math.exp(0.5 * x) - 1.0  # noqa: E731  (log R -> sqrt(R) - 1)
+    if se <= 0:
+        p_w, p_b, lo, hi = float(logR <= 0), float(logR >= 0), logR, logR
+    else:
+        nu = se ** 4 / (ua ** 2 / (Ba - 1) + uc ** 2 / (Bc - 1))
+        tq = float(stats.t.ppf(0.5 + level / 2.0, nu))
+        lo, hi = logR - tq * se, logR + tq * se
+        p_w, p_b = float(stats.t.sf(logR / se, nu)), float(stats.t.cdf(logR / se, nu))
+    alpha = (1.0 - level) / 2.0
+    return PairedTest(d(logR), d(lo), d(hi), level, p_w, p_b, p_w < alpha, p_b < alpha, rms_ref, rms_new,
+                      min(Ba, Bc), block)
+
+
+__all__ = ["LEVEL", "MIN_BLOCKS", "BLOCK_CORRELATIONS", "PairedTest", "block_length", "block_ids", "paired_test", "holm",
+           "compare_joints", "unpaired_test"]

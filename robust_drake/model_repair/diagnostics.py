@@ -357,3 +357,125 @@ def diagnose(data, residual: np.ndarray, validate_residual: np.ndarray | None = 
     if validate_residual is not None:
         rows += generalization(residual, validate_residual)
     return rows
+
+
+# ------------------------------------------------------------------------------------ moving / stuck rows
+def moving_rows(data) -> np.ndarray:
+    """(N, n) bool: the rows where joint j MOVES: outside the stuck runs widened by the filter's
+    settling (``data.friction_exclusion``, the rows a fit leaves out of joint j's equation) and
+    with |qd_j| above the stiction band ``conditioning.STICK_SPEED`` [rad/s]. The complement
+    ("still") holds the rows where friction balances whatever torque is applied, which no
+    velocity-friction model predicts (sign(qd_j) flips on a standing joint)."""
+    from robust_drake.identification.conditioning import STICK_SPEED
+    from robust_drake.identification.data import friction_exclusion
+
+    excl = friction_exclusion(data)
+    moving = np.abs(np.asarray(data.qd)) > STICK_SPEED
+    return moving if excl is None else moving & ~excl
+
+
+def stuck_rows_split(data, residual: np.ndarray) -> dict:
+    """Per-joint RMS of ``residual`` (N, n) [N m] on the moving rows and on the still ones
+    (:func:`moving_rows`), and the still rows' share of the samples: ``{"rms_validate_moving",
+    "rms_validate_stuck", "stuck_share"}`` (lists per joint; an RMS over no rows is NaN)."""
+    r2 = np.asarray(residual, float) ** 2
+    mov = moving_rows(data)
+    def rms_on(mask):
+        cnt = mask.sum(axis=0)
+        return [float(np.sqrt(s / c)) if c else float("nan") for s, c in zip((r2 * mask).sum(axis=0), cnt)]
+    return {"rms_validate_moving": rms_on(mov), "rms_validate_stuck": rms_on(~mov),
+            "stuck_share": [float(x) for x in (~mov).mean(axis=0)]}
+
+
+# ------------------------------------------------------------------------------------ setup change
+def setup_change(e_fit: np.ndarray, rows_fit: np.ndarray, seg_fit: np.ndarray, block_fit: int,
+                 e_val: np.ndarray, rows_val: np.ndarray, seg_val: np.ndarray, block_val: int,
+                 level: float | None = None) -> dict:
+    """Does the validation run match the fit run? Per joint j, the validation error's mean square
+    on its moving rows against the fit model's OUT-OF-SAMPLE mean square on the fit run's own
+    held-out moving rows (both (N, n) squared-error arrays ``e_*``, the rows ``rows_*`` (N, n)
+    bool, segments ``seg_*``, block lengths ``block_*`` [samples]), by
+    :func:`decisions.unpaired_test` (two different row sets: each side's block-mean spread), with
+    Holm's correction over the joints at family-wise (1 - level) / 2 one-sided. Flagged joints:
+    validation error beyond what the fit run's own held-out error and its spread explain (a
+    payload mounted, a sensor re-zeroed, another arm between the runs).
+
+    Returns ``{"flagged", "joints", "level", "tests": [{"joint", "ratio" (validation / held-out
+    RMS), "ratio_low", "ratio_high", ...PairedTest.as_dict()}], "rule"}``."""
+    from robust_drake.model_repair.decisions import LEVEL, block_ids, holm, unpaired_test
+
+    level = LEVEL if level is None else level
+    n = e_fit.shape[1]
+    tests = []
+    for j in range(n):
+        ia = block_ids(seg_fit, len(seg_fit), block_fit, rows_fit[:, j])
+        ic = block_ids(seg_val, len(seg_val), block_val, rows_val[:, j])
+        tests.append(unpaired_test(e_fit[:, j], ia, e_val[:, j], ic, level))
+    flags = holm([t.p_worse for t in tests], (1.0 - level) / 2.0)
+    rows = [{"joint": j, "ratio": t.estimate + 1.0, "ratio_low": t.low + 1.0, "ratio_high": t.high + 1.0,
+             **t.as_dict(), "worse": bool(f)} for j, (t, f) in enumerate(zip(tests, flags))]
+    joints = [r["joint"] for r in rows if r["worse"]]
+    return {"flagged": bool(joints), "joints": joints, "level": level, "tests": rows,
+            "rule": "per joint, the validation RMS torque error on the moving rows (|qd| above the stiction band, "
+                    "outside stuck runs) against the baseline's out-of-sample error on the fit run's held-out "
+                    "(confirmation) rows, unpaired block test (each side's block-mean spread), Holm over joints, "
+                    f"one-sided at {(1.0 - level) / 2.0:.1%}"}
+
+
+def setup_change_text(sc: dict, joint_names) -> str:
+    """The warning of a flagged :func:`setup_change`: the joints, each with its RMS ratio and
+    interval."""
+    parts = [f"joint {r['joint']} ({joint_names[r['joint']]}) x{r['ratio']:.2g} "
+             f"[{r['ratio_low']:.2g}, {r['ratio_high']:.2g}]" for r in sc["tests"] if r["worse"]]
+    return ("setup changed between fit and validation: the validation RMS torque error on moving rows is above the "
+            "fit run's own held-out error beyond its spread on " + ", ".join(parts)
+            + f" ({sc['level']:.0%} intervals of the RMS ratio): a payload, a re-zeroed sensor or another arm? "
+            "no effect is claimed on the strength of this validation")
+
+
+def heldout_residual(cache, weights, train: np.ndarray, test: np.ndarray) -> np.ndarray:
+    """(N, n) [N m]: the baseline (rigid body + Coulomb + viscous) fitted by weighted least
+    squares on the ``train`` rows of ``cache`` (a ``fitting.ColumnCache``) and its output error
+    on the ``test`` rows (0 elsewhere): the fit run's own out-of-sample error."""
+    from robust_drake.identification.fitting import predict_tau
+    from robust_drake.identification.least_squares import RANK_TOL, solve_gram
+
+    Gs, gs = cache.gram([], np.asarray(weights, float), [np.asarray(train, bool)])
+    theta = solve_gram(Gs[0], gs[0], tol=RANK_TOL)[0]
+    r = np.zeros_like(cache.data.tau)
+    r[test] = cache.data.tau[test] - predict_tau(cache, [], theta, test)
+    return r
+
+
+def setup_change_of(fit_cache, weights, fit_residual: np.ndarray, val_data, val_residual: np.ndarray,
+                    level: float | None = None) -> dict:
+    """:func:`setup_change` of a repair: the fit side is the baseline refitted on the selection's
+    search rows and scored on its confirmation block (``selection.selection_split``: the last
+    ``CONFIRM_FRACTION`` of every fit segment, behind a gap of filter settling + residual
+    correlation time), the validation side the baseline (fitted on all fit rows) on the
+    validation data, ``val_residual``; both on their moving rows (:func:`moving_rows`). Blocks:
+    ``decisions.block_length`` of the baseline residual's correlation time and the filter's
+    settling time, in each side's own sample period. Computed once, from the baseline only (no
+    effect is involved in the reference)."""
+    from robust_drake.model_repair.decisions import block_length
+    from robust_drake.model_repair.selection import correlation_time, filter_settling_time, selection_split
+
+    fit = fit_cache.source
+    split, _ = selection_split(fit, fit_residual)
+    confirm = split.confirm if split.confirm.any() else np.ones(fit.N, bool)
+    train = split.search if split.confirm.any() else np.ones(fit.N, bool)
+    r_fit = heldout_residual(fit_cache, weights, train, confirm)
+    rows_fit = moving_rows(fit) & confirm[:, None]
+    if fit_cache.exclude is not None:
+        rows_fit &= ~fit_cache.exclude
+    rows_val = moving_rows(val_data)
+    t_r = correlation_time(fit, fit_residual)
+    t_f = filter_settling_time(fit.filter.cutoff_hz, fit.filter.order or 1)
+    shortest = lambda d, m: min(int(np.sum((d.segment == s) & m)) for s in np.unique(d.segment[m]))  # noqa: E731
+    b_fit = block_length(fit.dt, t_r, t_f, rows=shortest(fit, confirm))
+    b_val = block_length(val_data.dt, t_r, t_f, rows=shortest(val_data, np.ones(val_data.N, bool)))
+    out = setup_change(r_fit ** 2, rows_fit, fit.segment, b_fit, np.asarray(val_residual) ** 2, rows_val,
+                       val_data.segment, b_val, level)
+    out.update(block_fit=int(b_fit), block_validate=int(b_val), correlation_time_s=float(t_r),
+               filter_settling_s=float(t_f))
+    return out

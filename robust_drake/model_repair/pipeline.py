@@ -16,7 +16,9 @@
 
 plus diagnostics (selection steps, identifiability, residual tests, data summary, notes), the
 never-worse outcome (``"verdict": "repaired" | "no_improvement"``, ``"verdict_reason"``,
-``"never_worse"``, ``"rejected_effects"`` and ``effects[*].kept/reason``), ``"joint_names"`` (URDF,
+``"never_worse"``, ``"rejected_effects"`` and ``effects[*].kept/reason/claimed``), ``"setup_change"`` (the
+validation run against the fit run's own held-out error, ``diagnostics.setup_change_of``: when flagged the
+verdict is ``no_improvement`` and no effect is claimed), ``"joint_names"`` (URDF,
 joints numbered from 0 everywhere) and the identified models ``"model"`` / ``"baseline_model"``
 (:class:`~robust_drake.model_repair.model.IdentifiedModel.to_json`), which are what control
 takes. The stages are in ``stages.py``; rendering (report.md from the same dict) in ``report.py``.
@@ -34,6 +36,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from robust_drake.errors import RobustDrakeError, option_name
+from robust_drake.model_repair import diagnostics as DG
 from robust_drake.model_repair import report as RP
 from robust_drake.identification.data import DEFAULT_CUTOFF_HZ, DataWarning
 from robust_drake.model_repair.model import IdentifiedModel
@@ -498,6 +501,7 @@ def run_repair(fit_paths, options: RepairOptions, validate_paths=None, out_dir=N
         warnings.simplefilter("always", DataWarning)
         inp = S.load_inputs(fit_paths, validate_paths, opts, log)
         base = S.fit_baseline(inp, opts, log)
+        setup = _setup_change(inp, base, log)  # the validation run against the fit run's own held-out error
         if validate_paths:  # validation data that the fitted baseline does not carry over to
             inp.warnings += IC.transfer_check(inp.val.tau, inp.val.tau - base.val_residual, base.fit.rms)
         est = S.choose_estimator(inp, base, opts, log)
@@ -512,12 +516,23 @@ def run_repair(fit_paths, options: RepairOptions, validate_paths=None, out_dir=N
     urdf_better = urdf_model_validates_better(nominal, fin.val_residual, guard.tolerance)
     if urdf_better:
         warn_msgs.append(urdf_better)
-    result = RP.RepairResult(opts, inp, base, est, sel, guard, fin, nominal, cons, replay_out, warn_msgs)
+    if setup["flagged"]:
+        warn_msgs.append(DG.setup_change_text(setup, inp.joint_names))
+    warn_msgs = RP.once(warn_msgs)
+    result = RP.RepairResult(opts, inp, base, est, sel, guard, fin, nominal, cons, replay_out, warn_msgs, setup)
     report = RP.build_report(result)
     inp.cf.release(result.selection.chosen)  # the candidates' columns are not needed for plots and files
     if out_path is not None:
         _write_report(report, result, out_path, fit_paths, validate_paths)
     return report
+
+
+def _setup_change(inp, base, log) -> dict:
+    """``diagnostics.setup_change_of`` on the baseline (computed once, before any effect)."""
+    sc = DG.setup_change_of(inp.cf, base.weights, base.fit.residual, inp.val, base.val_residual)
+    log("setup change between fit and validation: " + ("FLAGGED on joint(s) " + ", ".join(map(str, sc["joints"]))
+                                                       if sc["flagged"] else "not flagged"))
+    return sc
 
 
 def urdf_model_validates_better(nominal, val_residual, tol: float) -> str | None:

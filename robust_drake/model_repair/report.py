@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from robust_drake.model_repair import residual as R
+from robust_drake.model_repair.diagnostics import stuck_rows_split
 from robust_drake.model_repair.stages import identified_models, reference_rms
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -40,6 +41,23 @@ class RepairResult:
     consistent: object
     replay: dict
     warnings: list
+    #: ``diagnostics.setup_change_of``: the validation run against the fit run's own held-out error
+    setup_change: dict | None = None
+
+
+def once(messages: list[str]) -> list[str]:
+    """The warnings in order, each once; of the poor-excitation warnings (one per fit, each with its
+    own condition number, ``least_squares.poor_excitation_text``) only the first, the baseline's."""
+    from robust_drake.identification.least_squares import POOR_EXCITATION
+
+    out, poor = [], False
+    for m in dict.fromkeys(messages):
+        if m.startswith(POOR_EXCITATION):
+            if poor:
+                continue
+            poor = True
+        out.append(m)
+    return out
 
 
 def _rms(r):
@@ -76,17 +94,28 @@ def verdict(res: RepairResult) -> dict:
     kept = bool(res.selection.chosen) or res.estimator.iv
     named = [e["label"] for e in res.final.effects_out if e.get("source") == "parameter_shift"]
     tried = [s for s in res.selection.steps if s.accepted]
+    sc = res.setup_change or {}
+    replayed = bool((res.replay or {}).get("before") and (res.replay or {}).get("after"))
+    if sc.get("flagged"):
+        joints = ", ".join(str(j) for j in sc["joints"])
+        return {"verdict": "no_improvement",
+                "verdict_reason": f"the validation run does not match the fit run's arm/setup (joint(s) {joints}: "
+                                  "validation error beyond the fit run's own held-out error, see setup_change); no "
+                                  "effect is claimed on the strength of that validation"
+                                  + (f" ({len(res.selection.chosen)} effect(s) fitted, unconfirmed)" if res.selection.chosen else "")}
     if kept:
         why = (f"{len(res.selection.chosen)} effect(s) kept ({res.estimator.method}); no joint validates worse "
-               f"than the baseline by more than {res.guard.tolerance:.0%} and the replay is not worse")
+               f"than the baseline by more than {res.guard.tolerance:.0%}"
+               + (" and the replay is not worse" if replayed else " (torque validation only: no replay ran)"))
     elif not tried and not res.guard.dropped:
         why = "nothing kept: no candidate passed the selection"
     else:
         what = " and ".join(w for w, k in (("every effect tried", tried),
                                           ("the switch to instrumental variables",
                                            any(d["kind"] == "estimator" for d in res.guard.dropped))) if k)
-        why = (f"nothing kept: {what or 'everything tried'} made a joint's validation or the replay worse "
-               "than the least-squares baseline (see rejected_effects)")
+        why = (f"nothing kept: {what or 'everything tried'} made a joint's validation"
+               + (" or the replay" if replayed else "") + " worse than the least-squares baseline (see rejected_effects)"
+               + ("" if replayed else "; no replay ran"))
     if named:
         why += f"; named from the URDF comparison (not part of the fitted model): {', '.join(named)}"
     return {"verdict": "repaired" if kept else "no_improvement", "verdict_reason": why}
@@ -108,10 +137,12 @@ def build_report(res: RepairResult) -> dict:
         "torque": res.opts.torque,
         # rms_fit over the rows the fit uses (stuck rows left out: ColumnCache.rms), as predict scores it
         "baseline": {"rms_fit": inp.cf.rms(base.fit.residual).tolist(), "rms_validate": base.rms_validate,
+                     **stuck_rows_split(inp.val, base.val_residual),
                      "parameters": ident["parameters"], "standard_errors": ident["standard_errors"]},
         "effects": fin.effects_out,
         "rejected_effects": [{**d, "kept": False} for d in res.guard.dropped],
         "final": {"rms_fit": inp.cf.rms(fin.fit.residual).tolist(), "rms_validate": _rms(fin.val_residual),
+                  **stuck_rows_split(inp.val, fin.val_residual),
                   "parameters": fin.fit.as_dict()["parameters"],
                   "standard_errors": fin.fit.as_dict()["standard_errors"]},
         **verdict(res),
@@ -121,10 +152,11 @@ def build_report(res: RepairResult) -> dict:
                                 "(relative), and no joint's replay RMS position error on the validation data "
                                 "exceeds the least-squares baseline's replay by more than the tolerance",
                         "reference_rms_validate": list(_reference(res))},
-        "unexplained_structure": bool(final_ana["unexplained_structure"]),
+        "unexplained_structure": bool(final_ana["unexplained_structure"] or (res.setup_change or {}).get("flagged")),
+        "setup_change": res.setup_change,
         "nominal": res.nominal,
         "estimator": res.estimator.report,
-        "unexplained_where": final_ana["where"],
+        "unexplained_where": final_ana["where"] + _setup_where(res.setup_change),
         "replay": res.replay,
         "consistent": res.consistent.report,
         "identifiability": {"condition_number": base.fit.cond, "rank": base.fit.rank,
@@ -146,7 +178,70 @@ def build_report(res: RepairResult) -> dict:
         "model": model.to_json(),
         "baseline_model": base_model.to_json(),
     }
+    _finish(report, res)
     return strict(report)
+
+
+def _finish(report: dict, res: RepairResult) -> None:
+    """Effects annotated (:func:`annotate_effects`) and ``claimed`` (kept AND validated on a run
+    that matches the fit run's setup); the estimator says when the Hausman test alone decided."""
+    annotate_effects(report["effects"], res.inputs.fit.dt)
+    flagged = bool((res.setup_change or {}).get("flagged"))
+    for e in report["effects"]:
+        e["claimed"] = not flagged
+        if flagged:
+            e["reason"] += "; not claimed: the validation run does not match the fit run's setup (setup_change)"
+    est = report.get("estimator") or {}
+    if (est.get("hausman") or {}).get("significant") and "replay_fit" not in est:
+        est["decided_by"] = ("the Hausman test alone: the replay check of the fit data's motion did not run "
+                             "(needs the replay and the physically consistent fit on)")
+
+
+def grid_edge(kind: str, parameters: dict) -> list[str]:
+    """The shape parameters of an effect of ``kind`` chosen at the smallest or largest value of
+    its kind's candidate grid (``effects.EFFECTS[kind].shape_grid``, grids of two or more values):
+    the data may want a value beyond the grid, so the value is a bound, not a physical estimate.
+    Returns lines such as ``"transition_velocity = 1 at the edge of its grid [0.1, 1]"``."""
+    from robust_drake.model_repair.effects import EFFECTS
+
+    cls = EFFECTS.get(kind)
+    out = []
+    for name in sorted({k for g in getattr(cls, "shape_grid", None) or [] for k in g}):
+        vals = sorted({float(g[name]) for g in cls.shape_grid if name in g})
+        v = parameters.get(name)
+        if len(vals) >= 2 and isinstance(v, (int, float)) and (np.isclose(v, vals[0]) or np.isclose(v, vals[-1])):
+            out.append(f"{name} = {v:g} at the edge of its grid [{vals[0]:g}, {vals[-1]:g}]")
+    return out
+
+
+def annotate_effects(rows: list[dict], dt: float) -> None:
+    """Per kept effect: ``grid_edge`` (:func:`grid_edge`; the plausibility text then says so
+    first), and for a time delay ``delay_samples`` = delay / dt (the fit data's mean sample
+    period [s]) with its resolution: the delay is a continuous coefficient of the first-order
+    expansion tau(t - d) ~ tau - d dtau/dt, not a grid value, valid for d of about a sample period
+    or less."""
+    for row in rows:
+        edge = grid_edge(row["kind"], row.get("parameters") or {})
+        row["grid_edge"] = edge
+        if edge:
+            row["plausibility"] = ("AT THE EDGE OF ITS GRID (" + "; ".join(edge) + "): a bound of the search, not a "
+                                   "physical estimate; " + row.get("plausibility", ""))
+        d = (row.get("parameters") or {}).get("delay")
+        if row["kind"] == "time_delay" and isinstance(d, (int, float)):
+            row["delay_samples"] = float(d / dt)
+            row["plausibility"] = (row.get("plausibility", "") + f"; {d * 1e3:.3g} ms = {d / dt:.2g} sample periods "
+                                   f"(mean stamp spacing {dt * 1e3:.3g} ms), estimated as a continuous coefficient "
+                                   "(first-order expansion, no delay grid)")
+
+
+def _setup_where(sc: dict | None) -> list[dict]:
+    """The ``unexplained_where`` rows of a flagged setup change (one per joint)."""
+    if not (sc and sc.get("flagged")):
+        return []
+    return [{"test": "setup_change", "joint": r["joint"], "ratio": r["ratio"],
+             "variable": f"validation run (rms x{r['ratio']:.3g} [{r['ratio_low']:.3g}, {r['ratio_high']:.3g}] the fit "
+                         "run's held-out error)", "eta2": float(1.0 - 1.0 / max(r["ratio"], 1.0) ** 2)}
+            for r in sc["tests"] if r["worse"]]
 
 
 def _reference(res: RepairResult):
@@ -255,10 +350,48 @@ def _md_header(rep: dict) -> list[str]:
             f"**Verdict: {rep.get('verdict', 'n/a')}** ({rep.get('verdict_reason', '')}).", "",
             f"Joints (numbered from 0, URDF names): "
             + ", ".join(f"{j} = `{nm}`" for j, nm in enumerate(_names(rep))) + ".", "",
-            f"Fit samples: {rep['samples']} ({len(d['sources'])} files); validation samples: "
-            f"{rep['samples_validate']} ({rep['data']['validation_source']}). Torque column: `{rep['torque']}`.",
+            f"Fit samples: {rep['samples']} ({len(d['sources'])} file{'s' if len(d['sources']) != 1 else ''}); validation samples: "
+            f"{rep['samples_validate']} ({_validation_source(rep)}). Torque column: `{rep['torque']}`.",
             f"Filter: {d['filter']['method']}, cut-off {d['filter']['cutoff_hz']} Hz, "
             f"{d['filter']['trim_samples']} samples trimmed at each file end.", ""]
+
+
+def _validation_source(rep: dict) -> str:
+    """"from 2 validation files" or "held-out tail of the fit files"."""
+    if rep["data"]["validation_source"] != "files":
+        return "held-out tail of the fit files"
+    k = len((rep["data"].get("validate") or {}).get("sources") or [])
+    return f"from {k} validation file{'s' if k != 1 else ''}" if k else "from the validation files"
+
+
+def _md_rows(rep: dict) -> list[str]:
+    """One line per joint: the repaired model's validation RMS on moving and on still rows."""
+    f = rep["final"]
+    if "stuck_share" not in f:
+        return []
+    L = ["", "Validation rows by motion (repaired model; still = |qd| within the stiction band or in a stuck run "
+         "widened by the filter's settling, rows a fit leaves out):", ""]
+    for j, (m, st, sh) in enumerate(zip(f["rms_validate_moving"], f["rms_validate_stuck"], f["stuck_share"])):
+        L.append(f"- {_joint(rep, j)}: moving {_num(m, '.4f')} N m, still {_num(st, '.4f')} N m "
+                 f"({_num(sh, '.0%')} of the rows still)")
+    return L
+
+
+def _md_setup(rep: dict) -> list[str]:
+    sc = rep.get("setup_change")
+    if not sc:
+        return []
+    L = ["", "## Fit run vs validation run (setup change)", "",
+         ("**Flagged**: the validation run does not match the fit run's arm or setup on joint(s) "
+          + ", ".join(str(j) for j in sc["joints"]) + "; no effect is claimed on the strength of that validation."
+          if sc["flagged"] else "Not flagged: the validation error is within the fit run's own held-out error and its spread."),
+         "", f"Rule: {sc['rule']}.", "", "| joint | held-out RMS (fit run) | validation RMS | ratio [interval] | p |",
+         "|---|---|---|---|---|"]
+    for r in sc["tests"]:
+        L.append(f"| {_joint(rep, r['joint'])} | {_num(r['rms_ref'], '.4f')} | {_num(r['rms_new'], '.4f')} | "
+                 f"{_num(r['ratio'], '.3g')} [{_num(r['ratio_low'], '.3g')}, {_num(r['ratio_high'], '.3g')}] | "
+                 f"{_num(r['p_worse'], '.2g')}{' **flagged**' if r['worse'] else ''} |")
+    return L
 
 
 def _md_errors(rep: dict) -> list[str]:
@@ -316,7 +449,9 @@ def _md_effects(rep: dict) -> list[str]:
         how = ("held-out error -" + _num(e["heldout_gain"], ".1%") if e.get("heldout_gain") is not None
                else "named from the base-parameter shift against the URDF")
         L.append(f"- **{e['kind']}** ({_joint(rep, e['joint'])}): {ps}; {how}; "
-                 f"confidence {e['confidence']}. Why plausible: {e['plausibility']}.")
+                 f"confidence {e['confidence']}. Why plausible: {e['plausibility']}."
+                 + ("" if e.get("claimed", True) else " **Not claimed**: the validation run does not match the "
+                    "fit run's setup."))
     nw = rep.get("never_worse") or {}
     if rep.get("rejected_effects"):
         L += ["", f"Tried and dropped by the never-worse rule (tolerance {_num(nw.get('tolerance'), '.0%')}; "
@@ -338,6 +473,8 @@ def _md_estimator(rep: dict) -> list[str]:
             f"against LS (required < {_num(rf['required_ratio'], '.2f')})" if rf else "")
     else:
         verdict = "**not significant**"
+    if est.get("decided_by"):
+        verdict += f" (decided by {est['decided_by']})"
     return ["", "## Errors in variables (estimator)", "",
             "The regressor is built from positions differentiated twice; what those columns carry and "
             "the torque does not cause (motion through gear backlash at reversals, vibration, "
@@ -360,7 +497,9 @@ def _md_nominal(rep: dict) -> list[str]:
          "Effects whose columns lie in the span of the rigid-body regressor (a tool payload, a rotor "
          "inertia already inside a base parameter) are absorbed exactly by a free fit; they show up "
          "only as a shift of the base parameters away from the URDF's. Shift chi^2 "
-         f"{_num(nom['chi2'], '.1f')} over {nom['dof']} parameters (99 % limit {_num(nom['chi2_limit'], '.1f')}; URDF "
+         f"{_num(nom['chi2'], '.1f')} over the {nom['dof']} directions the data identify"
+         + (f" ({nom['unidentified_directions']} unidentified left out)" if nom.get("unidentified_directions") else "")
+         + f" (99 % limit {_num(nom['chi2_limit'], '.1f')}; URDF "
          f"trusted to {_num(nom['sigma_rel'], '.0%')} of each parameter): "
          + ("**not significant**." if not nom["significant"] else
             f"**explained by {nom['named']}**." if nom.get("named") else
@@ -461,6 +600,7 @@ def _md_truth(rep: dict) -> list[str]:
 
 def render_markdown(rep: dict) -> str:
     """``report.md`` from the ``report.json`` dictionary (and nothing else)."""
-    L = (_md_header(rep) + _md_truth(rep) + _md_errors(rep) + _md_effects(rep) + _md_estimator(rep) + _md_nominal(rep)
+    L = (_md_header(rep) + _md_truth(rep) + _md_errors(rep) + _md_rows(rep) + _md_setup(rep) + _md_effects(rep)
+         + _md_estimator(rep) + _md_nominal(rep)
          + _md_selection(rep) + _md_residual(rep) + _md_replay_and_rest(rep))
     return "\n".join(L) + "\n"
