@@ -104,8 +104,8 @@ def test_c_baseline_replay_is_computed_once(runs, monkeypatch):
     real_tests = S.replay_tests
     forced = []
 
-    def tests_forcing_one_drop(ref, new, rule):  # the first attempt is called worse on joint 1
-        out = real_tests(ref, new, rule)
+    def tests_forcing_one_drop(*args):  # the first attempt is called worse on joint 1
+        out = real_tests(*args)
         if not forced:
             forced.append(1)
             out[1] = S.replace(out[1], worse=True)

@@ -17,7 +17,12 @@ Never worse (:func:`never_worse`, :func:`replay_guard`), one statistical rule fo
 
 "Significantly above" on joint j: the paired block test of the two per-row squared-error series
 (same rows) says the candidate's mean square is above (1 + margin)^2 times the reference's at the
-one-sided level (1 - ``level``) / 2, Holm-corrected over the joints (``decisions.compare_joints``).
+one-sided level (1 - ``level``) / 2, Holm-corrected over the joints (``decisions.compare_joints``) in
+two families: the joints the model's single-joint effects act on (each effect judged on its own
+joint, a hypothesis stated before looking) and the others (a search for harm elsewhere); so the
+false-"worse" rate is at most (1 - level) / 2 per family. On the 7-joint battery's backlash case a
+cogging term misattributed to joint 3 validates it +18.8 % [+1.6, +33.9] (95 %): worse beyond
+the 1 % margin on its own joint, but not after Holm over all seven joints.
 The margin (``RepairOptions.never_worse_tol``, default ``NEVER_WORSE_TOL`` = 1 %) is a
 non-inferiority margin, no longer a threshold on the point estimate: a paired test cancels what
 the two models share (noise, the motion), so a change of 0.1 % that is the same on every block is
@@ -225,10 +230,24 @@ class Rule:
     def of(cls, opts) -> "Rule":
         return cls(float(getattr(opts, "level", D.LEVEL)), float(getattr(opts, "never_worse_tol", NEVER_WORSE_TOL)))
 
-    def compare(self, E_ref, E_new, ids, joints=None) -> list[D.PairedTest]:
+    def compare(self, E_ref, E_new, ids, targeted=None) -> list[D.PairedTest]:
         """Per-joint tests of squared-error series (N, n) on blocks ``ids``: estimate, interval,
         ``better`` as ``decisions.compare_joints``; ``worse`` and ``p_worse`` those of the test
-        against the margin."""
+        against the margin. Holm runs over two families: the ``targeted`` joints (those the
+        model's single-joint effects act on: each effect is judged on its own joint as a stated
+        hypothesis, not one found by a search over the joints) and the other joints (the search
+        for a joint it harms elsewhere); without targeted joints one family of all."""
+        n = np.atleast_2d(np.asarray(E_ref)).shape[1]
+        on = sorted({int(j) for j in (targeted or ()) if j is not None and 0 <= int(j) < n})
+        families = [on, [j for j in range(n) if j not in on]] if 0 < len(on) < n else [list(range(n))]
+        out: list = [None] * n
+        for fam in families:
+            tests = self._family(E_ref, E_new, ids, fam)
+            for j in fam:
+                out[j] = tests[j]
+        return out
+
+    def _family(self, E_ref, E_new, ids, joints) -> list[D.PairedTest]:
         tests = D.compare_joints(E_ref, E_new, ids, self.level, joints)
         if not math.isfinite(self.margin):
             return [replace(t, worse=False, p_worse=1.0) for t in tests]
@@ -239,12 +258,12 @@ class Rule:
         return tests
 
     def text(self) -> str:
-        return (f"paired block test at {self.level:.0%}, Holm over joints; worse = above the reference by more "
-                f"than {self.margin:.0%} beyond the test's spread")
+        return (f"paired block test at {self.level:.0%}, Holm over the effects' own joints and over the others; "
+                f"worse = above the reference by more than {self.margin:.0%} beyond the test's spread")
 
     def as_dict(self) -> dict:
         return {"level": self.level, "margin": self.margin, "test": "decisions.paired_test (block mean-square ratio), "
-                "Holm over joints", "rule": self.text()}
+                "Holm over joints (two families: the effects' own joints, the others)", "rule": self.text()}
 
 
 def worse_text(joint_names, tests, joints, rule: Rule, what: str) -> str:
@@ -536,18 +555,24 @@ def reference_rms(base: Baseline, est: Estimator | None = None) -> np.ndarray:
     return np.maximum(np.asarray(base.rms_validate, float), 1e-12)
 
 
-def validate_tests(inp: Inputs, base: Baseline, residual: np.ndarray, rule: Rule) -> list:
+def targeted_joints(effects) -> list[int]:
+    """The joints a model's single-joint effects act on (:meth:`Rule.compare`'s first family)."""
+    return sorted({e.joint for e in effects if getattr(e, "joint", None) is not None})
+
+
+def validate_tests(inp: Inputs, base: Baseline, residual: np.ndarray, rule: Rule, effects=()) -> list:
     """Per-joint paired tests (:class:`Rule`) of a model's validation ``residual`` (N_val, n) [N m]
-    against the least-squares baseline's, on the baseline's blocks (computed once)."""
+    against the least-squares baseline's, on the baseline's blocks (computed once); ``effects``
+    the model's effects (their joints form the first Holm family)."""
     blocks = base.blocks if base.blocks is not None else validation_blocks(inp.val, base.val_residual)
-    return rule.compare(base.sq_validate, np.asarray(residual, float) ** 2, blocks.ids)
+    return rule.compare(base.sq_validate, np.asarray(residual, float) ** 2, blocks.ids, targeted_joints(effects))
 
 
 def _val_tests(inp, base, est, effects, opts, rule: Rule):
     w = refit_weights(inp, base, est, effects, opts)
     f, _ = est.fit(inp.cf, effects, w)
     r = inp.val.tau - predict_tau(inp.cv, effects, f.theta)
-    return validate_tests(inp, base, r, rule), rms(r)
+    return validate_tests(inp, base, r, rule, effects), rms(r)
 
 
 def _badness(tests) -> tuple:
@@ -612,7 +637,8 @@ def final_model(inp: Inputs, est: Estimator, sel: Selection, opts, base: Baselin
     (``validate_change``, :func:`validate_tests`)."""
     chosen, w = sel.chosen, sel.weights
     rule = Rule.of(opts)
-    change = (lambda r: [t.as_dict() for t in validate_tests(inp, base, r, rule)]) if base is not None else None
+    change = (lambda r, effs: [t.as_dict() for t in validate_tests(inp, base, r, rule, effs)]) \
+        if base is not None else None
     final_fit, slices = est.fit(inp.cf, chosen, w, covariance=True)  # the model's covariance
     rows = []
     for k, e in enumerate(chosen):
@@ -635,11 +661,11 @@ def final_model(inp: Inputs, est: Estimator, sel: Selection, opts, base: Baselin
                                     "baseline (paired block test)",
         })
         if change is not None:
-            rows[-1]["validate_change"] = change(rv)
+            rows[-1]["validate_change"] = change(rv, chosen[:k + 1])
         if effect_label(e) in sel.joint_resolution:
             rows[-1]["joint_resolution"] = sel.joint_resolution[effect_label(e)]
     r_val = inp.val.tau - predict_tau(inp.cv, chosen, final_fit.theta)
-    tests = validate_tests(inp, base, r_val, rule) if base is not None else []
+    tests = validate_tests(inp, base, r_val, rule, chosen) if base is not None else []
     return Final(final_fit, slices, r_val, rows, tests)
 
 
@@ -757,7 +783,7 @@ def summary_of(rp: dict | None) -> dict | None:
     return None if rp is None else {k: v for k, v in rp.items() if k not in SERIES_KEYS}
 
 
-def replay_tests(ref: dict | None, new: dict | None, rule: Rule) -> list:
+def replay_tests(ref: dict | None, new: dict | None, rule: Rule, effects=()) -> list:
     """Per-joint paired tests (:class:`Rule`) of the squared position errors of two replays of the
     same rows (``series``), the replay windows as blocks: each window starts from the measured
     state, so the windows are the independent units (within one the error is an integral of the
@@ -768,7 +794,7 @@ def replay_tests(ref: dict | None, new: dict | None, rule: Rule) -> list:
     Er, En = np.asarray(ref["error_q"], float), np.asarray(new["error_q"], float)
     if Er.shape != En.shape or not np.array_equal(ref["window"], new["window"]):
         return []
-    return rule.compare(Er ** 2, En ** 2, np.asarray(ref["window"]))
+    return rule.compare(Er ** 2, En ** 2, np.asarray(ref["window"]), targeted_joints(effects))
 
 
 def baseline_replay(inp: Inputs, base: Baseline, cons: "Consistent", opts) -> dict:
@@ -803,7 +829,7 @@ def replay_pair(inp: Inputs, base: Baseline, fin: Final, sel: Selection, cons: C
     except RobustDrakeError as exc:
         inp.notes.append(f"replay failed: {exc}")
         return out, []
-    tests = replay_tests(before, after, rule)
+    tests = replay_tests(before, after, rule, sel.chosen)
     out = {"before": summary_of(before), "after": summary_of(after)}
     log(f"replay rms q before {np.round(out['before']['rms_q'], 4)} after {np.round(out['after']['rms_q'], 4)}; "
         + ", ".join(f"joint {j} {t.text()}" for j, t in enumerate(tests)))
