@@ -27,8 +27,8 @@ validation on different motions). Every case is repaired once (module cache) and
 - log artefacts on the arm's ``battery.ARTEFACT_BASE`` case (jittered stamps, gaps, unequal file
   lengths, 1 kHz): the conditioning warning where there is one, the same effects claimed as on
   the clean 250 Hz log, the parameter within 10 % of the clean log's;
-- every case: never worse -- each joint's validation RMS after <= before x (1 + NEVER_WORSE_TOL)
-  and the replay not worse by more than the same tolerance.
+- every case: never worse -- no joint's validation RMS (nor replay RMS q) above the baseline's by
+  more than the NEVER_WORSE_TOL margin beyond the paired block test's spread (the report's tests).
 Cases measured failing are xfail(strict=False) with the measured reason (a failing case is
 information: see BUILD_NOTES "battery"). The backlash block itself is checked against the
 closed-form gap-crossing time.
@@ -42,7 +42,6 @@ from test_outside_library import EXPECTED_TEST, MISATTRIBUTED
 
 from robust_drake.model_repair import battery as B
 from robust_drake.model_repair.backlash import BacklashDrive, contact_parameters, dead_zone, transmitted_torque
-from robust_drake.model_repair.stages import NEVER_WORSE_TOL
 
 pytest.importorskip("robust_drake.model_repair.pipeline")
 
@@ -58,11 +57,6 @@ CASES = B.CASES
 #: 2026-12-01 on branches battery13 and batfix (``benchmarks/battery_table.py``, table in
 #: benchmarks/battery_table.md)
 KNOWN: dict = {
-    ("puma560_3link", "load_dependent_friction", "library"):
-        "not kept: load_dependent_friction[0] is picked (held-out -54.9 %, confirmation -57.9 %) and "
-        "replays the waist 6x better (RMS q 9.5e-4 -> 1.5e-4 rad), but the shoulder's replay, 16x "
-        "smaller, grows 6.1e-5 -> 6.7e-5 rad (+10 %, also with least squares: +4 %, elbow +2 %): the "
-        "replay guard's 1 % relative tolerance (no absolute floor) drops it; selection, not generator",
     ("puma560_3link", "rotor_inertia", "library"):
         "named second: 0.4 kg m^2 on the shoulder lies in the rigid-body span; the nominal "
         "comparison's directed test names rotor_inertia[1] = 0.4005 (URDF-only shoulder 1.15 -> 0.047 "
@@ -70,11 +64,6 @@ KNOWN: dict = {
         "elbow validation 0.0150 -> 0.0147 N m, replay -2 %) is claimed first (not the hidden effect): it "
         "comes with the IV switch (Hausman 44.5 > 38.9); with least squares only rotor_inertia[1] is "
         "claimed, and with the inertia set to 0 on the same stripped arm nothing is",
-    ("puma560_3link", "presliding_friction", "library"):
-        "not kept: presliding_friction[0] x0 0.01 is picked (held-out -47.9 %, confirmation -21.8 %), "
-        "waist validation 1.43 -> 0.198 N m and replay 2.2e-3 -> 8.0e-4 rad, but the shoulder's replay "
-        "(25x smaller) grows 9.0e-5 -> 1.03e-4 rad (+15 %): dropped by the replay guard's 1 % relative "
-        "tolerance (no absolute floor); selection, not generator",
     ("siciliano_2link", "drift", "outside"):
         "not flagged on 8 s runs (the viscous coefficient of the elbow grows 1.6 N m s/rad per s); "
         "test_outside_library flags it on 12 s runs",
@@ -94,9 +83,6 @@ KNOWN: dict = {
         "validation RMS (joint 1: 1.21 -> 0.45 N m) but the replay gets worse on joints 3-5, so the "
         "never-worse guard drops it and nothing is kept (replay joint 3 8.6e-3 -> 9.3e-3, joints 4-5 "
         "+14 % / +49 %, while joint 1 improves 1.13e-2 -> 8.3e-3 rad): a wrong-joint pick, rightly not kept",
-    ("serial7", "jitter", "artefact"):
-        "the clean base case (torque_scale) keeps nothing (see its library entry), so there is no "
-        "answer to compare the jittered log's with (the jittered log keeps nothing either)",
     ("siciliano_2link", "dead_zone", "diagnosed"):
         "threshold off: named dead_zone[1] with d = 87.6 N m (true 60, +46 %) and share c = 0.69: the "
         "dead-band diagnostic's estimate is 97.4 N m on 8 s runs and the candidates are only 0.9 / "
@@ -343,9 +329,16 @@ def test_log_artefact_warned_and_same_answer(arm, case, battery_dir):
 
 @pytest.mark.parametrize("arm,case", _params(ALL, "never_worse"))
 def test_never_worse(arm, case, battery_dir):
+    """Worse = worse beyond the paired block test's spread, by more than the NEVER_WORSE_TOL margin
+    (issue 21). Before it this asserted every joint's point RMS within 1 %: e.g. puma560 none's
+    replay joint 1 8.29e-5 -> 8.39e-5 rad (+1.2 %, 4 windows) or serial7's IV switch at +1.1 %
+    on joint 6, changes inside their own spread."""
     r = _row(arm, case, battery_dir)
-    before, after = np.array(r["before"]), np.array(r["after"])
-    assert np.all(after <= before * (1 + NEVER_WORSE_TOL)), (before, after)
+    before = np.array(r["before"])
+    assert len(r["validate_change"]) == len(before)
+    assert not [(j, t) for j, t in enumerate(r["validate_change"]) if t["worse"]]
+    assert r["never_worse_validation"]
     if r["replay_before"] is not None:
-        rb, ra = np.array(r["replay_before"]), np.array(r["replay_after"])
-        assert np.all(ra <= rb * (1 + NEVER_WORSE_TOL)), (rb, ra)
+        assert len(r["replay_change"]) == len(before)
+        assert not [(j, t) for j, t in enumerate(r["replay_change"]) if t["worse"]]
+        assert r["never_worse_replay"]

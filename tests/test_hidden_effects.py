@@ -153,7 +153,8 @@ def test_undeclared_sensor_vibration_is_caught_by_the_estimator_test(tmp_path_fa
     a 5-8 Hz vibration (1 mrad RMS) the torque does not cause. Least squares on the differentiated
     positions is attenuated; repair detects it (Hausman + the fit-data replay), and the IV estimate
     lands within 3 % of the true inertial parameters; no torque effect is claimed for it. The IV
-    switch is then held to the per-joint torque rule and dropped (see below)."""
+    switch is then held to the per-joint torque rule and kept: its validation torque is not worse
+    beyond the paired test's spread (see below)."""
     from robust_drake.identification.least_squares import load_regressor
     from robust_drake.model_repair.simulated import hidden_effect_case
 
@@ -164,16 +165,18 @@ def test_undeclared_sensor_vibration_is_caught_by_the_estimator_test(tmp_path_fa
     assert est["hausman"]["significant"]
     assert est["replay_fit"]["ratio"] < 0.5
     # IV's parameters are right, but with equally noisy validation columns its torque error is
-    # above LS's on joint 0 (measured +6.5 %): the switch is held to the per-joint never-worse
-    # rule like an effect (issue 13), dropped, and the report says so -- a known cost of the rule
-    # on errors-in-variables data (BUILD_NOTES, known limits)
+    # above LS's on joint 0 (measured +7 %). Before issue 21 the never-worse rule (1 % on the point
+    # RMS) dropped the switch for it; the paired block test finds +7.1 % [-20.6, +28.9] (95 %, 9
+    # blocks): not worse beyond its spread, so IV stays -- and the replay of the validation data,
+    # which does not suffer the noisy columns, says IV is much better (-73 % and -93 %, measured)
     iv_val, ls_val = est["baseline_iv"]["rms_validate"], rep["baseline"]["rms_validate"]
     assert iv_val[0] > 1.01 * ls_val[0], (iv_val, ls_val)
-    assert est["method"] == "least_squares"
-    assert any(d["kind"] == "estimator" for d in rep["rejected_effects"])
+    assert est["method"] == "instrumental_variables"
+    assert not any(d["kind"] == "estimator" for d in rep["rejected_effects"])
     assert rep["effects"] == [], [e["label"] for e in rep["effects"]]
-    assert all(a <= 1.01 * b for a, b in zip(rep["final"]["rms_validate"], ls_val))
-    # the IV estimate itself (before the rule dropped it) is within 3 % of the true parameters
+    assert not any(t["worse"] for t in rep["final"]["validate_change"])
+    assert all(t["better"] for t in rep["replay"]["after"]["tests"]), rep["replay"]["after"]["tests"]
+    # the IV estimate itself is within 3 % of the true parameters
     from robust_drake.identification.data import load, load_companion
     from robust_drake.identification.instruments import INSTRUMENT_RATIO, fit_model_iv
     from robust_drake.model_repair.selection import ColumnCache
@@ -185,6 +188,6 @@ def test_undeclared_sensor_vibration_is_caught_by_the_estimator_test(tmp_path_fa
     th0 = reg.base_parameters()
     big = [k for k in range(len(th0)) if abs(th0[k]) > 0.02]  # first moments and link inertias
     assert max(abs(iv.theta[k] / th0[k] - 1) for k in big) < 0.03
-    # and the LS baseline it keeps is the attenuated one
+    # and the LS baseline it replaces is the attenuated one
     ls = [rep["baseline"]["parameters"][reg.base_names[k]] for k in big]
     assert max(abs(v / th0[k] - 1) for v, k in zip(ls, big)) > 0.09

@@ -5,7 +5,8 @@ periodic in *time* (no library column depends on t). Without the guard (main at 
 measured 2026-12-01) the selection claimed a time_delay on joint 1 for the 3 Hz disturbance
 (joint 0 validated +3.6 % worse) and two position_dependent cogging terms for the 0.4 Hz one
 (joints +13 % / +26 % worse, replay worse). The guard must drop them, say why, and end with
-every joint within the stated tolerance of the baseline.
+no joint worse than the baseline beyond the comparison's own spread (issue 21: paired block tests
+with the tolerance as non-inferiority margin).
 """
 
 import numpy as np
@@ -34,13 +35,24 @@ def repaired(request, tmp_path_factory):
 
 
 def test_no_joint_validates_worse_than_the_baseline(repaired):
+    """Worse = worse beyond the comparison's own spread (issue 21: paired block test, Holm over
+    joints, the tolerance as non-inferiority margin). Before issue 21 this asserted the replay's
+    point RMS within 1 % of the baseline's; on the 0.4 Hz case the kept periodic_disturbance[1]
+    (0.413 Hz for the simulator's 0.4 Hz, validation joint 1 -68 %) replays joint 0
+    +32.5 % [-33.2, +75.1] (95 %, 20 windows): not a change the 20 windows can tell from none."""
     rep, _ = repaired
-    tol = rep["never_worse"]["tolerance"]
-    assert 0 < tol <= 0.02
+    nw = rep["never_worse"]
+    tol = nw["tolerance"]
+    assert 0 < tol <= 0.02 and nw["level"] == 0.95
     base, final = np.array(rep["baseline"]["rms_validate"]), np.array(rep["final"]["rms_validate"])
-    assert np.all(final <= base * (1 + tol)), (base, final)
-    rb, ra = np.array(rep["replay"]["before"]["rms_q"]), np.array(rep["replay"]["after"]["rms_q"])
-    assert np.all(ra <= rb * (1 + tol)), (rb, ra)
+    for tests, ref, new in ((rep["final"]["validate_change"], base, final),
+                            (rep["replay"]["after"]["tests"], rep["replay"]["before"]["rms_q"],
+                             rep["replay"]["after"]["rms_q"])):
+        assert len(tests) == len(base)
+        for j, t in enumerate(tests):
+            # not worse = the data do not show the RMS above the reference's by more than the margin
+            assert not t["worse"], (j, t)
+            assert np.sign(t["estimate"]) == np.sign(new[j] / ref[j] - 1) or abs(new[j] / ref[j] - 1) < 0.01
 
 
 def test_what_was_tried_is_reported_with_the_reason(repaired):

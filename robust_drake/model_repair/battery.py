@@ -244,6 +244,7 @@ def score(rep: dict, truth: dict, tol: float) -> dict:
     rb = (rp.get("before") or {}).get("rms_q")
     ra = (rp.get("after") or {}).get("rms_q") or rb
     found, est = _estimate(rep, truth)
+    vc, rc = rep["final"].get("validate_change") or [], (rp.get("after") or {}).get("tests") or []
     true = truth.get("parameters", {}).get(truth.get("key")) if truth.get("key") else None
     return {
         "claimed": [(e["kind"], e.get("joint"), e["confidence"]) for e in rep["effects"]],
@@ -258,9 +259,13 @@ def score(rep: dict, truth: dict, tol: float) -> dict:
         "named_after": found.get("rms_validate_after") if found and found.get("source") == "parameter_shift" else None,
         "param_error": None if est is None or not true else abs(est - true) / abs(true),
         "before": before.tolist(), "after": after.tolist(),
-        "never_worse_validation": bool(np.all(after <= before * (1 + tol))),
+        # never worse as the repair decides it (issue 21, stages.Rule): no joint worse beyond the paired
+        # block test's spread (the report's per-joint tests); the point rule only for reports without them
+        "validate_change": vc, "replay_change": rc,
+        "never_worse_validation": (not any(t["worse"] for t in vc)) if vc else bool(np.all(after <= before * (1 + tol))),
         "replay_before": rb, "replay_after": ra,
-        "never_worse_replay": rb is None or bool(np.all(np.asarray(ra) <= np.asarray(rb) * (1 + tol))),
+        "never_worse_replay": rb is None or ((not any(t["worse"] for t in rc)) if rc else
+                                             bool(np.all(np.asarray(ra) <= np.asarray(rb) * (1 + tol)))),
         "unexplained": bool(rep["unexplained_structure"]),
         "where": list(rep.get("unexplained_where") or []),
         "baseline_diagnostics": list(rep["residual"]["baseline"].get("diagnostics") or []),

@@ -42,6 +42,7 @@ from robust_drake.identification.data import DEFAULT_CUTOFF_HZ, DataWarning
 from robust_drake.model_repair.model import IdentifiedModel
 from robust_drake.model_repair.report import json_default as _json_default
 from robust_drake.model_repair.report import render_markdown  # noqa: F401  (re-exported)
+from robust_drake.model_repair.decisions import LEVEL
 from robust_drake.model_repair.selection import MIN_GAIN
 from robust_drake.model_repair.stages import HOLDOUT_FRACTION, split_tail, tail_mask  # noqa: F401  (re-exported)
 
@@ -66,9 +67,15 @@ class RepairOptions:
     instruments: bool = True  # errors-in-variables test; IV estimate when significant (instruments.py)
     nominal: bool = True  # compare with the URDF's parameters (nominal.py): span effects, torque_scale joint
     sigma_rel: float = 0.05  # relative trust in the URDF's base parameters for that comparison
-    #: never worse (stages.never_worse): an effect or the IV switch is kept only if no joint's
-    #: validation RMS torque (and replay RMS q) exceeds the baseline's by more than this (relative)
+    #: never worse (stages.never_worse, stages.Rule): an effect or the IV switch is kept only if no
+    #: joint's validation RMS torque (and replay RMS q) is above the baseline's by more than this
+    #: margin (relative) beyond its own sampling spread (paired block test at ``level``, Holm over
+    #: joints). It is no longer a threshold on the point estimate (superseded by the test), but the
+    #: test's non-inferiority margin; inf switches the rule off
     never_worse_tol: float = 0.01
+    #: confidence level of the guards' paired block tests (decisions.py; two-sided intervals,
+    #: one-sided tests at (1 - level) / 2 family-wise over the joints)
+    level: float = LEVEL
     notes: list[str] = field(default_factory=list)
 
     def __post_init__(self):
@@ -113,6 +120,9 @@ class RepairOptions:
         self.sigma_rel = _number("sigma_rel", self.sigma_rel, "a relative trust", positive=True)
         self.never_worse_tol = _number("never_worse_tol", self.never_worse_tol, "a relative tolerance",
                                        allow_inf=True)  # inf: the never-worse rule switched off
+        self.level = _number("level", self.level, "a confidence level, e.g. 0.95", positive=True)
+        if not self.level < 1.0:
+            raise OptionError("level", f"must be a confidence level in (0, 1), e.g. 0.95, got {self.level!r}")
         self.replay_horizon = _number("replay_horizon", self.replay_horizon, "a horizon in s", positive=True)
         self.replay_windows = _whole("replay_windows", self.replay_windows, minimum=1)
         for name in ("consistent", "replay", "plots", "weighted", "instruments", "nominal"):

@@ -93,13 +93,22 @@ def _prefill_presliding(diagram, ctx, seg: IdentData, k: int) -> None:
 
 
 def replay(robot, data: IdentData, coulomb, viscous, effects=(), inertias=None, horizon=DEFAULT_HORIZON,
-           max_windows=MAX_WINDOWS) -> dict:
-    """Short-horizon replays; returns per-joint RMS position error (all samples, window ends)."""
+           max_windows=MAX_WINDOWS, series: bool = False) -> dict:
+    """Short-horizon replays; returns per-joint RMS position error [rad] (all samples, window ends).
+
+    The windows' start samples depend only on ``data`` (its segments' lengths and dt),
+    ``horizon`` and ``max_windows``, so two replays of the same data cover the same rows. With
+    ``series`` the result also holds ``"error_q"`` (rows, n) [rad], the position error of every
+    replayed row, and ``"window"`` (rows,), the window number of each row: the paired block test
+    of two replays (``stages.replay_tests``) takes the windows as its blocks (each window starts
+    from the measured state, so its error owes nothing to the window before; within a window the
+    error is an integral and its rows are strongly dependent). These two entries are arrays and
+    are not part of the report."""
     from pydrake.systems.analysis import Simulator
 
     from robust_drake.identification.consistency import set_plant_inertias
 
-    errs, ends = [], []
+    errs, ends, win = [], [], []
     per_seg = max(1, max_windows // len(np.unique(data.segment)))
     for seg in data.segments():
         diagram, plant = build_replay_diagram(robot, seg, coulomb, viscous, effects, inertias)
@@ -129,10 +138,13 @@ def replay(robot, data: IdentData, coulomb, viscous, effects=(), inertias=None, 
             e = np.array(qs) - seg.q[k + 1:k + H + 1]
             errs.append(e)
             ends.append(e[-1])
+            win.append(np.full(len(e), len(ends) - 1))
     E = np.concatenate(errs)
+    extra = {"error_q": E, "window": np.concatenate(win)} if series else {}
     return {
         "horizon_s": float(horizon), "windows": len(ends),
         "rms_q": [float(x) for x in np.sqrt(np.mean(E**2, axis=0))],
         "rms_q_end": [float(x) for x in np.sqrt(np.mean(np.array(ends) ** 2, axis=0))],
         "inertias": "identified (physically consistent)" if inertias is not None else "URDF nominal",
+        **extra,
     }

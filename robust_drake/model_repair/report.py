@@ -105,8 +105,9 @@ def verdict(res: RepairResult) -> dict:
                                   + (f" ({len(res.selection.chosen)} effect(s) fitted, unconfirmed)" if res.selection.chosen else "")}
     if kept:
         why = (f"{len(res.selection.chosen)} effect(s) kept ({res.estimator.method}); no joint validates worse "
-               f"than the baseline by more than {res.guard.tolerance:.0%}"
-               + (" and the replay is not worse" if replayed else " (torque validation only: no replay ran)"))
+               f"than the baseline by more than {res.guard.tolerance:.0%} beyond its spread (paired block test, "
+               f"{res.guard.level:.0%}, Holm over joints)"
+               + (" and neither does the replay" if replayed else " (torque validation only: no replay ran)"))
     elif not tried and not res.guard.dropped:
         why = "nothing kept: no candidate passed the selection"
     else:
@@ -144,14 +145,10 @@ def build_report(res: RepairResult) -> dict:
         "final": {"rms_fit": inp.cf.rms(fin.fit.residual).tolist(), "rms_validate": _rms(fin.val_residual),
                   **stuck_rows_split(inp.val, fin.val_residual),
                   "parameters": fin.fit.as_dict()["parameters"],
-                  "standard_errors": fin.fit.as_dict()["standard_errors"]},
+                  "standard_errors": fin.fit.as_dict()["standard_errors"],
+                  "validate_change": [t.as_dict() for t in fin.validate_change]},
         **verdict(res),
-        "never_worse": {"tolerance": res.guard.tolerance, "attempts": res.guard.attempts,
-                        "rule": "the model (its effects and the IV switch) is kept only if no joint's validation "
-                                "RMS torque error exceeds the least-squares baseline's by more than the tolerance "
-                                "(relative), and no joint's replay RMS position error on the validation data "
-                                "exceeds the least-squares baseline's replay by more than the tolerance",
-                        "reference_rms_validate": list(_reference(res))},
+        "never_worse": _never_worse(res),
         "unexplained_structure": bool(final_ana["unexplained_structure"] or (res.setup_change or {}).get("flagged")),
         "setup_change": res.setup_change,
         "nominal": res.nominal,
@@ -242,6 +239,21 @@ def _setup_where(sc: dict | None) -> list[dict]:
              "variable": f"validation run (rms x{r['ratio']:.3g} [{r['ratio_low']:.3g}, {r['ratio_high']:.3g}] the fit "
                          "run's held-out error)", "eta2": float(1.0 - 1.0 / max(r["ratio"], 1.0) ** 2)}
             for r in sc["tests"] if r["worse"]]
+def _never_worse(res: RepairResult) -> dict:
+    """``never_worse``: the rule, what it tried, and the per-joint tests (``PairedTest.as_dict``) of
+    the kept model's validation torque (``tests``) and replay (``replay_tests``) against the baseline."""
+    g, blocks = res.guard, res.baseline.blocks
+    return {"tolerance": g.tolerance, "margin": g.tolerance, "level": g.level, "attempts": g.attempts,
+            "rule": "the model (its effects and the IV switch) is kept only if no joint's validation RMS torque error "
+                    "is above the least-squares baseline's by more than the margin (tolerance, relative) beyond its "
+                    "sampling spread, and no joint's replay RMS position error on the validation data is above the "
+                    "baseline's replay (computed once) so: paired block test of the per-row squared errors at the "
+                    "level (decisions.py; validation blocks of block_samples rows, replay windows as blocks), Holm "
+                    "over joints",
+            "reference_rms_validate": list(_reference(res)),
+            "blocks": None if blocks is None else blocks.as_dict(),
+            "tests": [t.as_dict() for t in g.tests], "replay_tests": [t.as_dict() for t in g.replay_tests],
+            "replay_attempts": g.replay_attempts}
 
 
 def _reference(res: RepairResult):
@@ -392,6 +404,25 @@ def _md_setup(rep: dict) -> list[str]:
                  f"{_num(r['ratio'], '.3g')} [{_num(r['ratio_low'], '.3g')}, {_num(r['ratio_high'], '.3g')}] | "
                  f"{_num(r['p_worse'], '.2g')}{' **flagged**' if r['worse'] else ''} |")
     return L
+def change_text(t: dict | None) -> str:
+    """``-27.0 % [-31.2, -22.5] (95 %)`` from a ``PairedTest.as_dict()`` (report.json; an infinite
+    interval end is null there: "n/a")."""
+    if not t or t.get("estimate") is None:
+        return "n/a"
+    end = lambda x: "n/a" if x is None else f"{100 * x:+.1f}"  # noqa: E731
+    flag = " worse" if t.get("worse") else " better" if t.get("better") else ""
+    return (f"{100 * t['estimate']:+.1f} % [{end(t.get('low'))}, {end(t.get('high'))}] ({100 * t['level']:.0f} %)"
+            f"{flag}")
+
+
+def _md_changes(rep: dict, tests: list, what: str) -> list[str]:
+    """One line per joint: the change with its interval (``change_text``)."""
+    if not tests:
+        return []
+    t0 = tests[0]
+    return ["", f"{what} (relative RMS change against the baseline, paired block test over {t0['blocks']} blocks of "
+            f"{t0['block']} samples; interval at the stated level; 'worse'/'better' after Holm over joints):", ""] + [
+        f"- {_joint(rep, j)}: {change_text(t)}" for j, t in enumerate(tests)]
 
 
 def _md_errors(rep: dict) -> list[str]:
@@ -412,7 +443,7 @@ def _md_errors(rep: dict) -> list[str]:
         L.append(row(f"repaired, physically consistent ({c['solver']})", [_num(x, ".4f") for x in c["rms_fit"]],
                      [_num(x, ".4f") for x in c["rms_validate"]]))
         L += _md_bodies(c)
-    return L
+    return L + _md_changes(rep, rep["final"].get("validate_change") or [], "Validation error of the repaired model")
 
 
 def _md_bodies(c: dict) -> list[str]:
@@ -454,8 +485,8 @@ def _md_effects(rep: dict) -> list[str]:
                     "fit run's setup."))
     nw = rep.get("never_worse") or {}
     if rep.get("rejected_effects"):
-        L += ["", f"Tried and dropped by the never-worse rule (tolerance {_num(nw.get('tolerance'), '.0%')}; "
-              f"{nw.get('rule', '')}):", ""]
+        L += ["", f"Tried and dropped by the never-worse rule (margin {_num(nw.get('tolerance'), '.0%')}, level "
+              f"{_num(nw.get('level'), '.0%')}; {nw.get('rule', '')}):", ""]
         L += [f"- {d['label']} ({_joint(rep, d['joint'])}): {d['reason']}" for d in rep["rejected_effects"]]
     return L
 
@@ -470,7 +501,9 @@ def _md_estimator(rep: dict) -> list[str]:
         rf = est.get("replay_fit")
         verdict = "**significant**" + (
             f"; the IV model replays the fit data's motion with mean RMS q ratio {_num(rf['ratio'], '.2f')} "
-            f"against LS (required < {_num(rf['required_ratio'], '.2f')})" if rf else "")
+            "against LS; per joint: " + "; ".join(f"{_joint(rep, j)} {change_text(t)}"
+                                                 for j, t in enumerate(rf.get("tests") or []))
+            + " (IV kept unless worse on a joint)" if rf else "")
     else:
         verdict = "**not significant**"
     if est.get("decided_by"):
@@ -555,6 +588,8 @@ def _md_replay_and_rest(rep: dict) -> list[str]:
               "| model | RMS q error per joint [rad] | RMS q error at window end [rad] |", "|---|---|---|",
               f"| before (baseline) | {_nums(rp['before']['rms_q'])} | {_nums(rp['before']['rms_q_end'])} |",
               f"| after (repaired + effect blocks) | {_nums(rp['after']['rms_q'])} | {_nums(rp['after']['rms_q_end'])} |"]
+        L += _md_changes(rep, rp["after"].get("tests") or [], "Replay RMS q error of the repaired model (windows as "
+                         "blocks)")
     ident = rep["identifiability"]
     L += ["", "## Identifiability", "",
           f"Condition number of the column-normalised baseline regressor: {_num(ident['condition_number'], '.3g')}; "

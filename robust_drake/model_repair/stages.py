@@ -7,18 +7,37 @@
 Each stage takes and returns small dataclasses. The estimator travels in one typed form,
 :class:`Estimator` (least squares or instrumental variables with its instrument columns).
 
-Never worse (:func:`never_worse`, :func:`replay_guard`), tolerance ``NEVER_WORSE_TOL`` (relative,
-per joint):
+Never worse (:func:`never_worse`, :func:`replay_guard`), one statistical rule for every guard
+(:class:`Rule`, on ``decisions.py``'s paired block test):
 
 * the final model (its effects AND the estimator switch) is kept only if its validation RMS
-  torque error is not above the least-squares baseline's on ANY joint (:func:`reference_rms`),
-  and
-* only if its replay RMS position error on the validation data is not above the least-squares
-  baseline's replay on any joint.
+  torque error is not *significantly* above the least-squares baseline's on any joint, and
+* only if its replay RMS position error on the validation data is not significantly above the
+  least-squares baseline's replay on any joint.
 
-Otherwise the offender whose removal leaves the smallest worst-joint ratio (an effect, or the IV
-switch) is dropped and the model refitted, until the rule holds (at the latest with the
-least-squares baseline itself). The IV switch is held to the torque rule like an effect (issue
+"Significantly above" on joint j: the paired block test of the two per-row squared-error series
+(same rows) says the candidate's mean square is above (1 + margin)^2 times the reference's at the
+one-sided level (1 - ``level``) / 2, Holm-corrected over the joints (``decisions.compare_joints``) in
+two families: the joints the model's single-joint effects act on (each effect judged on its own
+joint, a hypothesis stated before looking) and the others (a search for harm elsewhere); so the
+false-"worse" rate is at most (1 - level) / 2 per family. On the 7-joint battery's backlash case a
+cogging term misattributed to joint 3 validates it +18.8 % [+1.6, +33.9] (95 %): worse beyond
+the 1 % margin on its own joint, but not after Holm over all seven joints.
+The margin (``RepairOptions.never_worse_tol``, default ``NEVER_WORSE_TOL`` = 1 %) is a
+non-inferiority margin, no longer a threshold on the point estimate: a paired test cancels what
+the two models share (noise, the motion), so a change of 0.1 % that is the same on every block is
+"significant"; the margin says which changes matter, the test whether the data show one. The
+reference side is computed once per repair: the baseline's validation residual (``Baseline``) and
+its blocks (:class:`Blocks`: ``BLOCK_CORRELATIONS`` correlation times of that residual plus the
+filter's settling time), and the baseline's replay (:func:`baseline_replay`, blocks = the replay
+windows, each started from the measured state).
+
+Otherwise the offender whose removal leaves the least-bad model (fewest worse joints, then the
+lowest worst lower interval end: :func:`_badness`; an effect, or the IV switch) is dropped and the
+model refitted, until the rule holds (at the latest with the least-squares baseline itself); the
+replay guard drops the last effect acting on a joint whose replay got worse, or, when none acts
+on those joints alone, the last one added (replays are too costly to try every drop). The IV
+switch is held to the torque rule like an effect (issue
 13): with errors in the variables the validation data's regressor is as noisy as the fit data's,
 so the attenuated LS parameters can be the better *equation-error* predictor there even when they
 are wrong (tests/test_hidden_effects.py's sensor-vibration arm: IV within 3 % of the truth, the
@@ -32,18 +51,21 @@ and viscous levels >= 0; a level the free fit puts below 0 is fixed at 0 and the
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import math
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from robust_drake.errors import RobustDrakeError
+from robust_drake.model_repair import decisions as D
 from robust_drake.model_repair import residual as R
 from robust_drake.identification.data import (IdentData, exclusion_messages, friction_exclusion, frozen_joints,
                                               load, load_companion)
 from robust_drake.identification.fitting import ColumnCache, effect_label, fit_model, predict_tau  # noqa: F401
 from robust_drake.identification.least_squares import LSResult, load_regressor, solve_wls
 
-#: relative tolerance of the never-worse rule (validation RMS torque and replay RMS q, per joint)
+#: non-inferiority margin of the never-worse rule (relative RMS, per joint; :class:`Rule`): a joint is
+#: worse only when the paired block test shows its RMS above the reference's by more than this
 NEVER_WORSE_TOL = 0.01
 #: without validation files, this contiguous tail of every fit file is held out
 HOLDOUT_FRACTION = 0.25
@@ -149,10 +171,107 @@ class Baseline:
     fit: LSResult
     val_residual: np.ndarray
     analysis: dict
+    #: the validation rows' blocks of every paired test against this baseline (computed once)
+    blocks: "Blocks | None" = None
+    #: the baseline's replay of the validation data, per inertia source (:func:`baseline_replay`)
+    replays: dict = field(default_factory=dict, repr=False)
 
     @property
     def rms_validate(self) -> list[float]:
         return rms(self.val_residual)
+
+    @property
+    def sq_validate(self) -> np.ndarray:
+        """Per-row squared validation torque error (N_val, n) [N^2 m^2]: the reference series."""
+        return np.asarray(self.val_residual, float) ** 2
+
+
+@dataclass(frozen=True)
+class Blocks:
+    """The validation rows cut into the paired tests' blocks (``decisions.block_ids``), once per
+    repair from the least-squares baseline's validation residual: ``ids`` block number per row,
+    ``block`` [samples] = round((BLOCK_CORRELATIONS t_r + t_f) / dt) (``decisions.block_length``),
+    ``correlation_time_s`` t_r [s] (``selection.correlation_time``), ``settling_time_s`` t_f [s]
+    (``selection.filter_settling_time``)."""
+
+    ids: np.ndarray
+    block: int
+    correlation_time_s: float
+    settling_time_s: float
+
+    def as_dict(self) -> dict:
+        return {"blocks": int(self.ids.max()) + 1 if len(self.ids) else 0, "block_samples": int(self.block),
+                "correlation_time_s": float(self.correlation_time_s), "settling_time_s": float(self.settling_time_s)}
+
+
+def validation_blocks(val: IdentData, residual: np.ndarray) -> Blocks:
+    """:class:`Blocks` of ``val`` from the reference model's validation ``residual`` (N, n)."""
+    from robust_drake.model_repair.selection import correlation_time, filter_settling_time
+
+    t_r = correlation_time(val, residual)
+    t_f = filter_settling_time(val.filter.cutoff_hz, val.filter.order)
+    shortest = min(int(np.sum(val.segment == s)) for s in np.unique(val.segment))
+    L = D.block_length(val.dt, t_r, t_f, rows=shortest)
+    return Blocks(D.block_ids(val.segment, val.N, L), L, t_r, t_f)
+
+
+@dataclass(frozen=True)
+class Rule:
+    """"Worse" and "better" of every guard (module docstring): paired block tests at ``level``
+    with Holm over the joints; worse = the RMS above the reference's by more than ``margin``
+    (relative) beyond the test's spread, i.e. the one-sided test of R > (1 + margin)^2 on the
+    ratio R of mean squares (the reference series scaled by (1 + margin)^2); ``margin`` = inf
+    switches "worse" off."""
+
+    level: float = D.LEVEL
+    margin: float = NEVER_WORSE_TOL
+
+    @classmethod
+    def of(cls, opts) -> "Rule":
+        return cls(float(getattr(opts, "level", D.LEVEL)), float(getattr(opts, "never_worse_tol", NEVER_WORSE_TOL)))
+
+    def compare(self, E_ref, E_new, ids, targeted=None) -> list[D.PairedTest]:
+        """Per-joint tests of squared-error series (N, n) on blocks ``ids``: estimate, interval,
+        ``better`` as ``decisions.compare_joints``; ``worse`` and ``p_worse`` those of the test
+        against the margin. Holm runs over two families: the ``targeted`` joints (those the
+        model's single-joint effects act on: each effect is judged on its own joint as a stated
+        hypothesis, not one found by a search over the joints) and the other joints (the search
+        for a joint it harms elsewhere); without targeted joints one family of all."""
+        n = np.atleast_2d(np.asarray(E_ref)).shape[1]
+        on = sorted({int(j) for j in (targeted or ()) if j is not None and 0 <= int(j) < n})
+        families = [on, [j for j in range(n) if j not in on]] if 0 < len(on) < n else [list(range(n))]
+        out: list = [None] * n
+        for fam in families:
+            tests = self._family(E_ref, E_new, ids, fam)
+            for j in fam:
+                out[j] = tests[j]
+        return out
+
+    def _family(self, E_ref, E_new, ids, joints) -> list[D.PairedTest]:
+        tests = D.compare_joints(E_ref, E_new, ids, self.level, joints)
+        if not math.isfinite(self.margin):
+            return [replace(t, worse=False, p_worse=1.0) for t in tests]
+        if self.margin > 0:
+            scaled = D.compare_joints(np.asarray(E_ref, float) * (1.0 + self.margin) ** 2, E_new, ids, self.level,
+                                      joints)
+            tests = [replace(t, worse=s.worse, p_worse=s.p_worse) for t, s in zip(tests, scaled)]
+        return tests
+
+    def text(self) -> str:
+        return (f"paired block test at {self.level:.0%}, Holm over the effects' own joints and over the others; "
+                f"worse = above the reference by more than {self.margin:.0%} beyond the test's spread")
+
+    def as_dict(self) -> dict:
+        return {"level": self.level, "margin": self.margin, "test": "decisions.paired_test (block mean-square ratio), "
+                "Holm over joints (two families: the effects' own joints, the others)", "rule": self.text()}
+
+
+def worse_text(joint_names, tests, joints, rule: Rule, what: str) -> str:
+    """The reason of a drop: the joints, each change with its interval, the blocks and the rule."""
+    t0 = tests[joints[0]]
+    return (f"with it the {what} is worse than the least-squares baseline's on joint(s) "
+            + ", ".join(f"{j} ({joint_names[j]}) {tests[j].text()}" for j in joints)
+            + f" ({t0.blocks} blocks of {t0.block} samples; {rule.text()})")
 
 
 #: names of the baseline's friction levels that must be >= 0 (``fc<j>`` Coulomb, ``fv<j>`` viscous)
@@ -232,7 +351,8 @@ def fit_baseline(inp: Inputs, opts, log) -> Baseline:
     log(f"baseline rms fit {np.round(base_fit.rms, 4)} validate {np.round(rms(r_val), 4)}")
     # the validation residual too: the diagnostics' generalization test compares the two
     return Baseline(weights, base_fit, r_val, R.analyse(inp.fit, base_fit.residual, validate_residual=r_val,
-                                                        validation=(inp.val, r_val)))
+                                                        validation=(inp.val, r_val)),
+                    blocks=validation_blocks(inp.val, r_val))
 
 
 # ------------------------------------------------------------------------------------ estimator
@@ -293,8 +413,8 @@ def choose_estimator(inp: Inputs, base: Baseline, opts, log) -> Estimator:
     report = {
         "method": "instrumental_variables" if test["significant"] else "least_squares",
         "rule": "Hausman test significant at 1 % and, with consistent fit + replay on, the IV "
-                "model replays the fit data's motion at least min_gain better (mean per-joint RMS q "
-                "ratio < 1 - min_gain)",
+                "model replays the fit data's motion worse than LS on no joint (paired block test over the "
+                "replay windows, Holm over joints, beyond the never-worse margin; replay_fit.tests)",
         "instrument_cutoff_hz": fz, "hausman": test,
         "baseline_iv": {"rms_fit": rms(iv_k.residual),
                         "rms_validate": rms(inp.val.tau - predict_tau(inp.cv, [], iv_k.theta))},
@@ -308,21 +428,34 @@ def choose_estimator(inp: Inputs, base: Baseline, opts, log) -> Estimator:
 
 
 def _replay_check(inp, base, est, ls_k, iv_k, opts, log) -> None:
-    """Output error decides too: LS is the best *equation-error* predictor given the noisy
-    columns, so both estimates replay the fit data's motion; IV stays only if >= min_gain better."""
+    """Output error checks the switch: LS is the best *equation-error* predictor given the noisy
+    columns, so both estimates replay the fit data's motion (same windows), and IV stays only if
+    the paired block test over the windows (:class:`Rule`, :func:`replay_tests`) finds it worse on
+    no joint -- the same rule as every guard. The Hausman test (1 %) is the switch's own
+    significance test; this check catches instruments that do not remove the bias (IV replaying
+    worse). Requiring a *significant* replay gain instead (the rule before issue 21 asked for a
+    5 % lower mean RMS q, no spread) has little power on 20 windows: on DFKI C.1 IV replays
+    -16.7 % [-44.3, +3.8] and -18.9 % [-52.0, +4.2] (95 %) better and would be refused."""
+    rule = Rule.of(opts)
     try:
-        r_ls = replay_model(opts, inp, inp.fit, ls_k, [], consistent_fit(inp, [], base.weights))
-        r_iv = replay_model(opts, inp, inp.fit, iv_k, [], consistent_fit(inp, [], base.weights, est.icache))
+        r_ls = replay_model(opts, inp, inp.fit, ls_k, [], consistent_fit(inp, [], base.weights), series=True)
+        r_iv = replay_model(opts, inp, inp.fit, iv_k, [], consistent_fit(inp, [], base.weights, est.icache),
+                            series=True)
     except RobustDrakeError as exc:
         inp.notes.append(f"estimator replay check failed ({exc}); Hausman test alone decides")
         return
+    tests = replay_tests(r_ls, r_iv, rule)
+    r_ls, r_iv = summary_of(r_ls), summary_of(r_iv)
     ratio = float(np.mean(np.asarray(r_iv["rms_q"]) / np.maximum(r_ls["rms_q"], 1e-12)))
+    better = [j for j, t in enumerate(tests) if t.better]
+    worse = [j for j, t in enumerate(tests) if t.worse]
     est.report["replay_fit"] = {"least_squares": r_ls["rms_q"], "instrumental_variables": r_iv["rms_q"],
-                                "ratio": ratio, "required_ratio": 1.0 - opts.min_gain}
-    if not ratio < 1.0 - opts.min_gain:  # the same 5 % bar an effect has to clear
+                                "ratio": ratio, "required_ratio": None, "tests": [t.as_dict() for t in tests],
+                                "better_joints": better, "worse_joints": worse, **rule.as_dict()}
+    if worse:
         est.method = est.report["method"] = "least_squares"
-    log(f"replay of the fit data, RMS q: LS {np.round(r_ls['rms_q'], 4)}, "
-        f"IV {np.round(r_iv['rms_q'], 4)} (mean ratio {ratio:.2f})")
+    log(f"replay of the fit data, RMS q: LS {np.round(r_ls['rms_q'], 4)}, IV {np.round(r_iv['rms_q'], 4)}; IV vs LS "
+        + ", ".join(f"joint {j} {t.text()}" for j, t in enumerate(tests)) + f" -> {est.method}")
 
 
 # ------------------------------------------------------------------------------------ selection
@@ -397,57 +530,90 @@ def resolve_torque_scale(inp: Inputs, base: Baseline, est: Estimator, sel: Selec
 # ------------------------------------------------------------------------------------ never worse
 @dataclass
 class Guard:
-    """What the never-worse rule tried: ``attempts`` (model, worst per-joint ratio), ``dropped``
-    ({"label", "kind", "joint", "reason"}; kind "estimator" for an IV -> LS switch)."""
+    """What the never-worse rule tried: ``attempts`` (model, per-joint tests against the
+    baseline), ``dropped`` ({"label", "kind", "joint", "reason"}; kind "estimator" for an IV -> LS
+    switch); ``tolerance`` is the rule's margin (:class:`Rule`), ``level`` its confidence level;
+    ``tests`` the validation tests of the model the torque rule kept, ``replay_tests`` the replay
+    tests of the model the replay guard kept, ``replay_attempts`` what the replay guard tried."""
 
     tolerance: float
+    level: float = D.LEVEL
     attempts: list = field(default_factory=list)
     dropped: list = field(default_factory=list)
+    tests: list = field(default_factory=list)
+    replay_tests: list = field(default_factory=list)
+    replay_attempts: list = field(default_factory=list)
+
+    @property
+    def rule(self) -> Rule:
+        return Rule(self.level, self.tolerance)
 
 
 def reference_rms(base: Baseline, est: Estimator | None = None) -> np.ndarray:
-    """Validation RMS torque [N m] per joint the final model (effects and estimator) must not
-    exceed: the least-squares baseline's (``est`` is accepted for compatibility, unused)."""
+    """Validation RMS torque [N m] per joint of the reference every model is compared with: the
+    least-squares baseline's (``est`` is accepted for compatibility, unused)."""
     return np.maximum(np.asarray(base.rms_validate, float), 1e-12)
 
 
-def _val_ratio(inp, base, est, effects, opts):
+def targeted_joints(effects) -> list[int]:
+    """The joints a model's single-joint effects act on (:meth:`Rule.compare`'s first family)."""
+    return sorted({e.joint for e in effects if getattr(e, "joint", None) is not None})
+
+
+def validate_tests(inp: Inputs, base: Baseline, residual: np.ndarray, rule: Rule, effects=()) -> list:
+    """Per-joint paired tests (:class:`Rule`) of a model's validation ``residual`` (N_val, n) [N m]
+    against the least-squares baseline's, on the baseline's blocks (computed once); ``effects``
+    the model's effects (their joints form the first Holm family)."""
+    blocks = base.blocks if base.blocks is not None else validation_blocks(inp.val, base.val_residual)
+    return rule.compare(base.sq_validate, np.asarray(residual, float) ** 2, blocks.ids, targeted_joints(effects))
+
+
+def _val_tests(inp, base, est, effects, opts, rule: Rule):
     w = refit_weights(inp, base, est, effects, opts)
     f, _ = est.fit(inp.cf, effects, w)
-    r = rms(inp.val.tau - predict_tau(inp.cv, effects, f.theta))
-    return np.asarray(r) / reference_rms(base, est), r
+    r = inp.val.tau - predict_tau(inp.cv, effects, f.theta)
+    return validate_tests(inp, base, r, rule, effects), rms(r)
+
+
+def _badness(tests) -> tuple:
+    """How bad a model is against the reference: (joints worse, highest lower interval end, highest
+    estimate); the smallest is the least bad."""
+    return (sum(bool(t.worse) for t in tests), max((t.low for t in tests), default=-math.inf),
+            max((t.estimate for t in tests), default=-math.inf))
 
 
 def never_worse(inp: Inputs, base: Baseline, est: Estimator, sel: Selection, opts, log,
                 tol: float = NEVER_WORSE_TOL) -> tuple[Estimator, Selection, Guard]:
     """Drop effects, or the IV switch, until no joint validates worse than the least-squares
-    baseline (:func:`reference_rms`) by more than ``tol`` (relative RMS). At each round every
-    single drop (each effect, and IV -> LS) is tried and the one leaving the smallest worst-joint
-    ratio is taken."""
-    guard = Guard(tol)
+    baseline (:class:`Rule` with margin ``tol`` at ``opts.level``: paired block test on the
+    validation rows, Holm over joints). At each round every single drop (each effect, and IV ->
+    LS) is tried and the one leaving the least-bad model (:func:`_badness`) is taken."""
+    rule = Rule(float(getattr(opts, "level", D.LEVEL)), float(tol))
+    guard = Guard(rule.margin, rule.level)
     effects = list(sel.chosen)
     while True:
-        ratio, r = _val_ratio(inp, base, est, effects, opts)
+        tests, r = _val_tests(inp, base, est, effects, opts, rule)
+        bad = [j for j, t in enumerate(tests) if t.worse]
+        guard.tests = tests
         guard.attempts.append({"estimator": est.method, "effects": [effect_label(e) for e in effects],
-                               "rms_validate": r, "worst_ratio": float(ratio.max())})
-        if ratio.max() <= 1.0 + tol or not (effects or est.iv):
+                               "rms_validate": r, "worst_ratio": float(np.max(np.asarray(r) / reference_rms(base))),
+                               "worse_joints": bad, "tests": [t.as_dict() for t in tests]})
+        if not bad or not (effects or est.iv):
             break
-        bad = [j for j in range(len(ratio)) if ratio[j] > 1.0 + tol]
-        why = (f"with it the validation RMS is worse than the least-squares baseline's on joint(s) "
-               f"{', '.join(f'{j} ({inp.joint_names[j]}) {ratio[j] - 1:+.1%}' for j in bad)} (tolerance {tol:.0%})")
-        scored = [(float(_val_ratio(inp, base, est, effects[:k] + effects[k + 1:], opts)[0].max()), k)
+        why = worse_text(inp.joint_names, tests, bad, rule, "validation RMS torque error")
+        scored = [(_badness(_val_tests(inp, base, est, effects[:k] + effects[k + 1:], opts, rule)[0]), k)
                   for k in range(len(effects))]
         if est.iv:
-            scored.append((float(_val_ratio(inp, base, est.as_least_squares(), effects, opts)[0].max()), -1))
+            scored.append((_badness(_val_tests(inp, base, est.as_least_squares(), effects, opts, rule)[0]), -1))
         k_drop = min(scored)[1]
         if k_drop < 0:
             est = est.as_least_squares()
             guard.dropped.append({"label": "instrumental variables", "kind": "estimator", "joint": None,
-                                  "reason": why})
+                                  "reason": why, "tests": [t.as_dict() for t in tests]})
         else:
             gone = effects.pop(k_drop)
             guard.dropped.append({"label": effect_label(gone), "kind": gone.kind, "joint": gone.joint,
-                                  "reason": why})
+                                  "reason": why, "tests": [t.as_dict() for t in tests]})
         log(f"never worse: dropped {guard.dropped[-1]['label']}: {why}")
     sel.chosen = effects
     sel.weights = refit_weights(inp, base, est, effects, opts)
@@ -461,11 +627,18 @@ class Final:
     slices: list
     val_residual: np.ndarray
     effects_out: list  # report rows of the kept effects (residual-selected)
+    #: per-joint paired tests of the final model's validation error against the baseline's (:class:`Rule`)
+    validate_change: list = field(default_factory=list)
 
 
-def final_model(inp: Inputs, est: Estimator, sel: Selection, opts) -> Final:
-    """Final fit and per-effect cumulative validation of the kept effects."""
+def final_model(inp: Inputs, est: Estimator, sel: Selection, opts, base: Baseline | None = None) -> Final:
+    """Final fit and per-effect cumulative validation of the kept effects; with ``base`` each
+    row and the final model carry their validation change against it with its interval
+    (``validate_change``, :func:`validate_tests`)."""
     chosen, w = sel.chosen, sel.weights
+    rule = Rule.of(opts)
+    change = (lambda r, effs: [t.as_dict() for t in validate_tests(inp, base, r, rule, effs)]) \
+        if base is not None else None
     final_fit, slices = est.fit(inp.cf, chosen, w, covariance=True)  # the model's covariance
     rows = []
     for k, e in enumerate(chosen):
@@ -484,12 +657,16 @@ def final_model(inp: Inputs, est: Estimator, sel: Selection, opts) -> Final:
             "is_disturbance": bool(getattr(e, "is_disturbance", False)),
             "confidence": "high" if step.gain >= 0.25 and not R.analyse(inp.fit, fk.residual)["unexplained_structure"]
             else "moderate",
-            "kept": True, "reason": "selected on held-out error; no joint validates worse than the baseline",
+            "kept": True, "reason": "selected on held-out error; no joint validates significantly worse than the "
+                                    "baseline (paired block test)",
         })
+        if change is not None:
+            rows[-1]["validate_change"] = change(rv, chosen[:k + 1])
         if effect_label(e) in sel.joint_resolution:
             rows[-1]["joint_resolution"] = sel.joint_resolution[effect_label(e)]
     r_val = inp.val.tau - predict_tau(inp.cv, chosen, final_fit.theta)
-    return Final(final_fit, slices, r_val, rows)
+    tests = validate_tests(inp, base, r_val, rule, chosen) if base is not None else []
+    return Final(final_fit, slices, r_val, rows, tests)
 
 
 def compare_nominal(inp: Inputs, sel: Selection, fin: Final, guard: Guard, opts, log) -> dict | None:
@@ -614,8 +791,9 @@ def friction_of(theta, names, n):
     return [th[f"fc{i + 1}"] for i in range(n)], [th[f"fv{i + 1}"] for i in range(n)]
 
 
-def replay_model(opts, inp: Inputs, data: IdentData, fitres, effects, cons) -> dict:
-    """Replay ``data`` through the Drake plant with a fitted model (consistent inertias if given)."""
+def replay_model(opts, inp: Inputs, data: IdentData, fitres, effects, cons, series: bool = False) -> dict:
+    """Replay ``data`` through the Drake plant with a fitted model (consistent inertias if given);
+    ``series``: with the per-row errors and window numbers (``replay.replay``)."""
     from robust_drake.model_repair.replay import replay
 
     theta = cons.theta if cons is not None else fitres.theta
@@ -624,51 +802,123 @@ def replay_model(opts, inp: Inputs, data: IdentData, fitres, effects, cons) -> d
     eff = [(e, e.parameters(theta[s])) for e, s in zip(effects, sl)]
     inert = (cons.body_names, cons.pi, cons.extras) if cons is not None else None
     return replay(opts.robot, data, fc, fv, eff, inertias=inert, horizon=opts.replay_horizon,
-                  max_windows=opts.replay_windows)
+                  max_windows=opts.replay_windows, series=series)
+
+
+#: entries of a replay with ``series`` that are arrays, not report figures
+SERIES_KEYS = ("error_q", "window")
+
+
+def summary_of(rp: dict | None) -> dict | None:
+    """A replay's report figures (without its per-row series)."""
+    return None if rp is None else {k: v for k, v in rp.items() if k not in SERIES_KEYS}
+
+
+def replay_tests(ref: dict | None, new: dict | None, rule: Rule, effects=()) -> list:
+    """Per-joint paired tests (:class:`Rule`) of the squared position errors of two replays of the
+    same rows (``series``), the replay windows as blocks: each window starts from the measured
+    state, so the windows are the independent units (within one the error is an integral of the
+    torque error and its rows are far more correlated than the torque residual's correlation time
+    says). [] without both series or when they do not cover the same rows."""
+    if not (ref and new and "error_q" in ref and "error_q" in new):
+        return []
+    Er, En = np.asarray(ref["error_q"], float), np.asarray(new["error_q"], float)
+    if Er.shape != En.shape or not np.array_equal(ref["window"], new["window"]):
+        return []
+    return rule.compare(Er ** 2, En ** 2, np.asarray(ref["window"]), targeted_joints(effects))
+
+
+def baseline_replay(inp: Inputs, base: Baseline, cons: "Consistent", opts) -> dict:
+    """The least-squares baseline's replay of the validation data (the "before" of the replay
+    guard), with its series; computed once per repair and inertia source (physically consistent
+    when ``cons`` has a baseline fit, else the URDF's) and reused by every attempt. The consistent
+    baseline is the one of the baseline's own weights (the same SDP the estimator's replay check
+    solved), not of the candidate model's second-step weights."""
+    key = "consistent" if getattr(cons, "base", None) is not None else "nominal"
+    if key not in base.replays:
+        cb = None
+        if key == "consistent":
+            try:
+                cb = consistent_fit(inp, [], base.weights)
+            except RobustDrakeError:
+                cb = cons.base
+        base.replays[key] = replay_model(opts, inp, inp.val, base.fit, [], cb, series=True)
+    return base.replays[key]
+
+
+def replay_pair(inp: Inputs, base: Baseline, fin: Final, sel: Selection, cons: Consistent, opts, log,
+                rule: Rule | None = None) -> tuple[dict, list]:
+    """({"before", "after"} report figures, per-joint replay tests after vs before); "before" is
+    :func:`baseline_replay` (computed once), "after" the final model's replay (same windows)."""
+    out = {"before": None, "after": None}
+    if not opts.replay:
+        return out, []
+    rule = rule or Rule.of(opts)
+    try:
+        before = baseline_replay(inp, base, cons, opts)
+        after = replay_model(opts, inp, inp.val, fin.fit, sel.chosen, cons.final, series=True)
+    except RobustDrakeError as exc:
+        inp.notes.append(f"replay failed: {exc}")
+        return out, []
+    tests = replay_tests(before, after, rule, sel.chosen)
+    out = {"before": summary_of(before), "after": summary_of(after)}
+    log(f"replay rms q before {np.round(out['before']['rms_q'], 4)} after {np.round(out['after']['rms_q'], 4)}; "
+        + ", ".join(f"joint {j} {t.text()}" for j, t in enumerate(tests)))
+    return out, tests
 
 
 def replay_models(inp: Inputs, base: Baseline, fin: Final, sel: Selection, cons: Consistent, opts, log) -> dict:
-    out = {"before": None, "after": None}
-    if not opts.replay:
-        return out
-    try:
-        out = {"before": replay_model(opts, inp, inp.val, base.fit, [], cons.base),
-               "after": replay_model(opts, inp, inp.val, fin.fit, sel.chosen, cons.final)}
-        log(f"replay rms q before {np.round(out['before']['rms_q'], 4)} after {np.round(out['after']['rms_q'], 4)}")
-    except RobustDrakeError as exc:
-        inp.notes.append(f"replay failed: {exc}")
-    return out
+    """{"before", "after"} replay figures (:func:`replay_pair`)."""
+    return replay_pair(inp, base, fin, sel, cons, opts, log)[0]
 
 
-def replay_worse(replay_out: dict, tol: float = NEVER_WORSE_TOL) -> list[int]:
-    """Joints whose replay RMS q error after is above before by more than ``tol`` (relative)."""
-    if not (replay_out.get("before") and replay_out.get("after")):
-        return []
-    b, a = np.asarray(replay_out["before"]["rms_q"], float), np.asarray(replay_out["after"]["rms_q"], float)
-    return [j for j in range(len(b)) if a[j] > b[j] * (1.0 + tol) + 1e-12]
+def replay_worse(replay_out: dict, tol: float = NEVER_WORSE_TOL, level: float = D.LEVEL) -> list[int]:
+    """Joints whose replay error after is significantly above before's (:func:`replay_tests` with
+    margin ``tol``); ``replay_out`` = {"before", "after"} replays with their series."""
+    tests = replay_tests(replay_out.get("before"), replay_out.get("after"), Rule(level, tol))
+    return [j for j, t in enumerate(tests) if t.worse]
+
+
+def _replay_drop(chosen: list, worse: list[int]) -> int:
+    """Index of the effect the replay guard drops: the last one acting on a joint whose replay got
+    worse; when none does (effects on other joints, or on all joints) the last one added; -1 for
+    the IV switch (no effect left)."""
+    on = [k for k, e in enumerate(chosen) if e.joint is not None and e.joint in worse]
+    return on[-1] if on else len(chosen) - 1
 
 
 def replay_guard(inp: Inputs, base: Baseline, est: Estimator, sel: Selection, guard: Guard, opts, log):
-    """Final model, consistent fit and replay; while the replay is worse than the baseline's on a
-    joint (beyond ``guard.tolerance``), drop the last kept effect (then the IV switch) and redo."""
+    """Final model, consistent fit and replay; while the replay is significantly worse than the
+    baseline's (computed once, :func:`baseline_replay`) on a joint (:class:`Rule`, replay windows as
+    blocks), drop an effect (:func:`_replay_drop`; then the IV switch) and redo."""
+    rule = guard.rule
     while True:
-        fin = final_model(inp, est, sel, opts)
+        fin = final_model(inp, est, sel, opts, base)
         cons = consistent_fits(inp, base, est, sel, opts, log)
-        rp = replay_models(inp, base, fin, sel, cons, opts, log)
-        worse = replay_worse(rp, guard.tolerance)
+        rp, tests = replay_pair(inp, base, fin, sel, cons, opts, log, rule)
+        worse = [j for j, t in enumerate(tests) if t.worse]
+        guard.replay_tests = tests
+        guard.replay_attempts.append({"estimator": est.method, "effects": [effect_label(e) for e in sel.chosen],
+                                      "rms_q": (rp.get("after") or {}).get("rms_q"), "worse_joints": worse,
+                                      "tests": [t.as_dict() for t in tests]})
         if not worse or (not sel.chosen and not est.iv):
             est.fit(inp.cf, sel.chosen, sel.weights)  # the final fit's friction levels fixed at 0
             inp.warnings.extend(friction_warnings(est.clamped, inp.joint_names, "final model"))
+            if rp.get("after") is not None and tests:
+                rp["after"]["tests"] = [t.as_dict() for t in tests]
             return est, sel, fin, cons, rp
-        why = (f"replay RMS q on joint(s) {', '.join(f'{j} ({inp.joint_names[j]})' for j in worse)} worse than "
-               f"the baseline's replay (tolerance {guard.tolerance:.0%})")
-        if sel.chosen:
-            gone = sel.chosen.pop()
-            guard.dropped.append({"label": effect_label(gone), "kind": gone.kind, "joint": gone.joint, "reason": why})
+        why = worse_text(inp.joint_names, tests, worse, rule, "replay RMS position error")
+        k = _replay_drop(sel.chosen, worse)
+        if k >= 0:
+            gone = sel.chosen.pop(k)
+            if gone.joint is None or gone.joint not in worse:
+                why += "; no kept effect acts on those joints alone: the last one added is dropped"
+            guard.dropped.append({"label": effect_label(gone), "kind": gone.kind, "joint": gone.joint, "reason": why,
+                                  "tests": [t.as_dict() for t in tests]})
         else:
             est = est.as_least_squares()
             guard.dropped.append({"label": "instrumental variables", "kind": "estimator", "joint": None,
-                                  "reason": why})
+                                  "reason": why, "tests": [t.as_dict() for t in tests]})
         sel.weights = refit_weights(inp, base, est, sel.chosen, opts)
         log(f"never worse: dropped {guard.dropped[-1]['label']}: {why}")
 
