@@ -147,46 +147,52 @@ NOISE_BAND = (0.5, 1.0)
 
 
 def white_noise_level(data: IdentData, residual: np.ndarray, keep: np.ndarray | None = None) -> tuple[np.ndarray, dict]:
-    """Per-joint white-noise level sigma_j [N m] (the per-sample standard deviation of the torque
-    measurement's white noise) estimated from the residual (N, n) of the filtered torque.
+    """Per-joint white-noise level sigma_j [N m] of the residual (N, n) of the filtered torque: the
+    RMS that white noise of the residual's own level keeps after the zero-phase filter -- the
+    floor an effect's explained RMS (of filtered columns) is compared with, like with like.
 
     Method: the residual's one-sided power spectral density P_j(f) (Welch, per segment, averaged
-    with the segments' lengths as weights) divided by the zero-phase filter's power gain |H(f)|^4
-    (Butterworth applied forward and backward) is the white level N0_j where the residual is noise;
-    it is averaged over the upper part of the filter's passband ``NOISE_BAND`` x f_c (there the
-    motion's structure is weakest and the filter still passes the noise: |H|^4 >= 1/4), and
-    sigma_j^2 = N0_j f_s / 2 (white noise of variance sigma^2 has density 2 sigma^2 / f_s).
+    with the segments' lengths as weights) divided by the zero-phase filter's power gain
+    |H(f)|^4 (Butterworth applied forward and backward) is the white level N0_j where the residual
+    is noise; it is averaged over the upper part of the filter's passband ``NOISE_BAND`` x f_c
+    (there the motion's structure is weakest and the filter still passes the noise: |H|^4 >= 1/4),
+    and sigma_j^2 = N0_j int_0^{f_s/2} |H(f)|^4 df. The per-sample equivalent sqrt(N0_j f_s / 2)
+    (white noise of variance s^2 has density 2 s^2 / f_s) is reported as ``noise_sample_std``:
+    it grows with the sampling rate and is not a floor (the filter averages it down).
     Why not the first-difference variance: the torque is filtered, so neighbouring residual
-    samples are correlated by the filter and a difference mostly cancels the noise too. Structure
-    left in that band raises the estimate: the floor errs towards refusing. ``keep`` (N, n): rows in
-    use (excluded rows hold zeros: the power is divided by the share kept)."""
+    samples are correlated by the filter and a difference mostly cancels the noise too. What the
+    band holds besides the torque sensor's noise (twice-differentiated encoder noise in the
+    regressor, broadband friction errors at reversals) raises the estimate: the floor errs towards
+    refusing. ``keep`` (N, n): rows in use (excluded rows hold zeros: power divided by the share)."""
     from scipy import signal
 
     r = np.asarray(residual, float)
     fs = 1.0 / float(data.dt)
     fc = data.filter.cutoff_hz if getattr(data.filter, "derivatives", "computed") != "given" else None
-    top = float(fc) if fc and fc < fs / 2 else fs / 2
+    fc = float(fc) if fc and fc < fs / 2 else None
+    top = fc if fc else fs / 2
     lo, hi = NOISE_BAND[0] * top, NOISE_BAND[1] * top
+    grid = np.linspace(0.0, fs / 2, 4097)
+    gain_of = (lambda f: np.ones_like(f)) if fc is None else (
+        lambda f: np.abs(signal.freqz(*signal.butter(int(data.filter.order), fc / (fs / 2)), worN=f, fs=fs)[1]) ** 4)
+    band_width = float(np.trapezoid(gain_of(grid), grid))  # int |H|^4 df [Hz]
     num, den = np.zeros(r.shape[1]), 0.0
     for s in np.unique(data.segment):
         idx = np.nonzero(data.segment == s)[0]
         nper = int(min(len(idx), max(64, 2 ** math.ceil(math.log2(16.0 * fs / max(hi - lo, 1e-9))))))
         f, P = signal.welch(r[idx], fs=fs, nperseg=nper, axis=0)
-        gain = np.ones_like(f)
-        if fc:
-            b, a = signal.butter(int(data.filter.order), float(fc) / (fs / 2))
-            gain = np.abs(signal.freqz(b, a, worN=f, fs=fs)[1]) ** 4
+        gain = gain_of(f)
         band = (f >= lo) & (f <= hi) & (gain > 1e-3)
-        if not band.any():
-            continue
-        num += len(idx) * np.mean(P[band] / gain[band, None], axis=0)
-        den += len(idx)
+        if band.any():
+            num += len(idx) * np.mean(P[band] / gain[band, None], axis=0)
+            den += len(idx)
     share = np.ones(r.shape[1]) if keep is None else np.maximum(np.mean(np.asarray(keep, float), axis=0), 1e-9)
-    n0 = num / max(den, 1e-300) / share
-    sigma = np.sqrt(np.maximum(n0, 0.0) * fs / 2.0)
+    n0 = np.maximum(num / max(den, 1e-300) / share, 0.0)
+    sigma = np.sqrt(n0 * band_width)
     return sigma, {"noise_floor": [float(x) for x in sigma], "noise_band_hz": [lo, hi],
-                   "noise_method": "mean residual PSD / filter power gain on the upper half of the filter "
-                                   "passband, x f_s / 2 (per-sample white-noise std of the torque)"}
+                   "noise_sample_std": [float(x) for x in np.sqrt(n0 * fs / 2.0)],
+                   "noise_method": "white level = mean residual PSD / filter power gain on the upper half of the "
+                                   "filter passband; floor = that white noise's RMS after the filter"}
 
 
 # ------------------------------------------------------------------------------------ rows
@@ -514,11 +520,9 @@ def forward_select(cache: ColumnCache, candidates: list, min_gain: float = MIN_G
             steps.append(st)
             if progress:
                 progress(f"step {st.step}: {st.label}: {st.reason}")
+        if winner is None:  # a step that accepts nothing ends the search (its alpha is spent)
+            break
         pool = [e for e in pool if effect_label(e) not in drop]
-        if winner is None:
-            if not drop:
-                break
-            continue
         e_best = winner["effect"]
         cur = {"effects": cur["effects"] + [e_best], "score": winner["score"], "per": winner["per"],
                "bic": winner["bic"], "confirm": winner.get("confirm")}
@@ -612,7 +616,7 @@ def _step(search: _Search, cur: dict, trials: list, baseline_score: float, c_bas
         if _judge(search, cur, t, st):
             st.accepted = True
             return steps, t, drop
-    if steps and not steps[-1].reason.endswith("stop") and not drop:
+    if steps and not steps[-1].reason.endswith("stop"):
         steps[-1].reason += ": stop"
     return steps, None, drop
 
