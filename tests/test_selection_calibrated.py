@@ -135,14 +135,14 @@ def _allowed(seeds: int) -> int:
 
 
 def test_no_effect_model_logs_accept_nothing_beyond_the_level(tmp_path):
-    seeds = 20
+    seeds = 30
     hits = []
     for s in range(seeds):
         sel = _select([_model_log(str(tmp_path / f"null{s}.csv"), s)], C1)
         if sel.chosen:
             hits.append((s, [SEL.effect_label(e) for e in sel.chosen]))
     assert len(hits) <= _allowed(seeds), hits
-    assert _allowed(seeds) <= 3  # the bound is tight: 20 seeds at 5 % allow 3
+    assert _allowed(seeds) <= 3  # the bound is tight: 30 seeds at 5 % allow 3
 
 
 @pytest.mark.slow
