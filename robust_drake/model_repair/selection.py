@@ -55,8 +55,9 @@ ranked by its CV gain on that error; then, from the top of the ranking:
     4. confirmation: a paired block test (``decisions.paired_test``) of the candidate vs the
        current model's squared errors on the confirmation rows (both fitted on the search rows;
        the current model's errors computed once per step), blocks of ``decisions.block_length``
-       (3 residual correlation times + the filter's settling time, at most a quarter of the
-       shortest segment's confirmation rows). Accepted when p_better < alpha_k.
+       (3 residual correlation times + the filter's settling time; a shorter segment is one block;
+       cut to a quarter of the shortest segment only when fewer than ``decisions.MIN_BLOCKS``
+       blocks remain). Accepted when p_better < alpha_k.
     Multiple-comparison guard: up to 1 + ``next_tries`` (``NEXT_TRIES`` = 3) candidates of a step
     reach test 4, tried in ranking order when the ones above fail; weighted Bonferroni, the winner
     at alpha / 2 and each next-ranked at alpha / (2 next_tries), alpha = (1 - ``level``) / 2 one-sided
@@ -563,7 +564,7 @@ def forward_select(cache: ColumnCache, candidates: list, min_gain: float = MIN_G
 def _setup(cache, min_gain, folds, weights, icache, confirm_fraction, confirm_gain, gap, context, level, next_tries):
     """The :class:`_Search` of a selection (baseline fit and weights, rows, blocks, noise levels)
     and the rows' info (``SelectionResult.rows``)."""
-    from robust_drake.model_repair.decisions import LEVEL, block_ids, block_length
+    from robust_drake.model_repair.decisions import LEVEL, MIN_BLOCKS, block_ids, block_length
     from robust_drake.model_repair.effects import PhysicalContext
 
     data = cache.data
@@ -576,6 +577,13 @@ def _setup(cache, min_gain, folds, weights, icache, confirm_fraction, confirm_ga
     t_f = filter_settling_time(data.filter.cutoff_hz, data.filter.order)
 
     def ids(mask):
+        """Blocks of the paired tests: 3 correlation times + the filter's settling
+        (``decisions.block_length``); a segment shorter than that is one block of its own (blocks
+        never cross segments); only when that leaves fewer than ``MIN_BLOCKS`` blocks are they cut
+        shorter (at most a quarter of the shortest segment's rows), which the test then needs."""
+        out = block_ids(data.segment, data.N, block_length(data.dt, t_r, t_f), mask)
+        if out.max(initial=-1) + 1 >= MIN_BLOCKS:
+            return out
         lens = [int(np.sum(mask & (data.segment == s))) for s in np.unique(data.segment)]
         lens = [L for L in lens if L] or [1]
         return block_ids(data.segment, data.N, block_length(data.dt, t_r, t_f, rows=min(lens)), mask)
