@@ -496,7 +496,8 @@ def select_effects(inp: Inputs, base: Baseline, est: Estimator, opts, log) -> Se
     chosen = list(sel.chosen)
     log(f"selection rows: gap {sel.rows.get('gap_s', 0):.3g} s (filter {sel.rows.get('filter_settling_s', 0):.3g} s"
         f" + residual correlation {sel.rows.get('correlation_time_s', 0):.3g} s), confirmation block "
-        f"{sel.rows.get('confirm_rows', 0)} samples")
+        f"{sel.rows.get('confirm_rows', 0)} samples; noise floor per joint "
+        f"{np.round(sel.rows.get('noise_floor', []), 4).tolist()} N m; level {sel.rows.get('level', 0):.0%}")
     return Selection(cands, list(sel.steps), sel.ranking, chosen, refit_weights(inp, base, est, chosen, opts),
                      {effect_label(e): effect_label(e) for e in chosen}, rows=sel.rows)
 
