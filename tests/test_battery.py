@@ -106,6 +106,10 @@ KNOWN: dict = {
 # with a noise floor and a "degenerate" verdict; on these 8 s runs three cases named before lose
 # their name (measured 2026-12-02, /tmp/selection/lost*.log of that branch):
 KNOWN.update({
+    ("siciliano_2link", "torque_offset", "library"):
+        "named as configuration_dependent[1](terms=s0,c0) (issue 21's cable kind): over the 8 s run's "
+        "range of q0, cos q0 and sin q0 span the 20 N m offset on joint 1 as well as the constant does, "
+        "and the two-column kind wins the held-out ranking; the offset itself is not named",
     ("siciliano_2link", "stribeck", "library"):
         "not named (issue 21): stribeck[1] v=0.4 is the winner (held-out -77.6 % on joint 1) but its "
         "confirmation block (the last 1.6 s of the 8 s fit run: 4 blocks of 93 samples) gives "

