@@ -178,3 +178,11 @@ def test_ur5_repair_names_a_10x_cogging_within_10_percent(cogging_repair):
     m = AB.matches(rep, truth)
     assert m["effects"][0]["found"] and m["effects"][0]["rel_error"] <= 0.10
     assert not m["others"]
+
+
+def test_rotor_case_removes_exactly_the_shoulders_reflected_inertia(tmp_path):
+    d = describe("ur5")
+    plant, stripped = make_plant("ur5"), make_plant(AB.without_rotor("ur5", 1, str(tmp_path / "nr.urdf")))
+    a, b = plant.CreateDefaultContext(), stripped.CreateDefaultContext()
+    dM = np.diag(plant.CalcMassMatrix(a) - stripped.CalcMassMatrix(b))
+    np.testing.assert_allclose(dM, [0, d.rotor_inertia * d.gear_ratio ** 2, 0, 0, 0, 0], atol=1e-12)

@@ -21,8 +21,8 @@ the noise" of joint j means k times its noise RMS over the fit run of the no-eff
 Cases (:data:`CASES`; ``generate`` returns ``(fit_paths, validate_paths, truth)``):
 
 - ``none``: the baseline arm only;
-- ``rotor_inertia``: the fit model is the arm's URDF without ``drake:rotor_inertia``
-  (``simulated.strip_rotor_inertia``); the plant adds the reflected inertia on the shoulder joint;
+- ``rotor_inertia``: the fit model is the arm's URDF without the shoulder joint's
+  ``drake:rotor_inertia`` (:func:`without_rotor`); the plant adds that reflected inertia back;
 - ``load_dependent_friction``: mu |tau| sign(qd) on the shoulder joint;
 - ``cogging_3x`` / ``cogging_10x``: a position-periodic torque (harmonic 8 per rev) on a wrist
   joint, amplitude 3 / 10 times that joint's noise RMS;
@@ -50,7 +50,7 @@ import numpy as np
 import pandas as pd
 
 from robust_drake.errors import RobustDrakeError
-from robust_drake.model_repair.simulated import HIDDEN_CASES, simulate_experiment, strip_rotor_inertia
+from robust_drake.model_repair.simulated import HIDDEN_CASES, simulate_experiment
 
 #: per arm: simulation settings (baseline friction [N m], [N m s/rad]; excitation), the noise
 #: model (1) (``rel``, ``floor`` [N m]) and the joints the cases put their effects on
@@ -194,7 +194,7 @@ def library_case(arm: str, kind: str, level: float, joint: int | None = None, ou
     params = {**{k: v for k, v in case["parameters"].items() if k != case["key"]}, **shape, case["key"]: value}
     plant, fit_robot = arm, arm
     if kind == "rotor_inertia":
-        plant = fit_robot = strip_rotor_inertia(arm, os.path.join(out_dir, f"{arm}_no_rotor.urdf"))
+        plant = fit_robot = without_rotor(arm, joint, os.path.join(out_dir, f"{arm}_no_rotor{joint}.urdf"))
     if kind == "time_delay":
         from robust_drake.model_repair.battery import described_copy
         fit_robot = described_copy(arm, out_dir, **BUS)
@@ -238,7 +238,7 @@ def generate(arm: str, case: str, out_dir: str, rate_hz: float = 500.0, duration
         return fits, vals, {"kind": None, "joint": None, "parameters": {}, "effects": [], "case": case,
                             "robot": arm, "fit_robot": arm}
     if case == "rotor_inertia":
-        plant = strip_rotor_inertia(arm, os.path.join(out_dir, f"{arm}_no_rotor.urdf"))
+        plant = without_rotor(arm, cfg["shoulder"], os.path.join(out_dir, f"{arm}_no_rotor.urdf"))
         params = {"reflected_inertia": _reflected_inertia(arm)}
         effs = [("rotor_inertia", cfg["shoulder"], params)]
         fits, vals = _pair(plant, plant, effs, effs, arm, out_dir, case, rate_hz, duration, seed)
@@ -266,6 +266,26 @@ def generate(arm: str, case: str, out_dir: str, rate_hz: float = 500.0, duration
     t.update(case=case, robot=arm)
     t["effects"] = [(x["kind"], x["joint"], x["parameters"]) for x in [t] + t.get("also", [])]
     return fits, vals, t
+
+
+def without_rotor(arm: str, joint: int, out_path: str) -> str:
+    """Copy of ``arm``'s URDF whose ``joint`` (0-based; its transmission names ``joint<j+1>``)
+    has no ``drake:rotor_inertia``; the other joints keep theirs.  (Stripping every joint, as
+    ``simulated.strip_rotor_inertia`` does, leaves the UR5's wrist 3 with 1.3e-4 kg m^2 of link
+    inertia against 0.2 N m of tanh(qd / 0.01 rad/s) Coulomb friction: a 5 us time constant on
+    which the error-controlled integrator crawled, 7 min for one 10 s run.)  Returns the path."""
+    import re
+
+    from robust_drake.model_repair.effects import resolve_robot_path
+
+    text = open(resolve_robot_path(arm)).read()
+    pat = re.compile(r'(<joint name="joint%d"/>.*?)\s*<drake:rotor_inertia[^>]*/>' % (joint + 1), re.S)
+    new, k = pat.subn(r"\1", text, count=1)
+    if k != 1:
+        raise RobustDrakeError(f"{arm}: no drake:rotor_inertia on the transmission of joint{joint + 1}")
+    with open(out_path, "w") as fh:
+        fh.write(new)
+    return out_path
 
 
 def _reflected_inertia(arm: str) -> float:
