@@ -243,14 +243,14 @@ class _SpongController(DiscreteController):
             if self._feedforward:
                 qa, va = np.array(x[3 * n:4 * n]), np.array(x[4 * n:5 * n])
                 u = np.asarray(u, dtype=float) + sum(np.asarray(f(qa, va), dtype=float) for f in self._feedforward)
-            discrete_state.set_value(self._u_index, u)
+            self.write_u(discrete_state, u)
             return
         x_d = self._x_d_port.Eval(context).tolist()
         u = self._scalar_law(x_d[:n], x_d[n:2 * n], x_d[2 * n:], self._q_port.Eval(context).tolist(),
                              self._v_port.Eval(context).tolist(), self._v_error_port.Eval(context).tolist())
         if self._feedforward:
             u = self.with_feedforward(context, u)
-        discrete_state.set_value(self._u_index, u)
+        self.write_u(discrete_state, u)
 
 
 class FusedInputController(Diagram):
