@@ -287,3 +287,31 @@ def test_held_torque_is_written_to_its_own_group_with_one_or_more_groups():
         np.testing.assert_array_equal(new.get_vector(law._u_index).CopyToVector(), [3.0, 0.5 - 1.5])
         if extra:
             np.testing.assert_array_equal(new.get_vector(law.extra).CopyToVector(), [7.0, 8.0, 9.0])
+
+
+def test_inlined_d2r2_regressor_is_the_function_bit_for_bit():
+    """d2r2_regressor_source (JS eq. 15 written into the SP1/SP2 per-tick law) executes to the very
+    floats of d2r2_regressor_single, and the law compiled with it gives the law compiled around the call."""
+    import math
+
+    from robust_drake.systems.controllers import spong
+
+    rng = np.random.default_rng(11)
+    lines, Y = spong.d2r2_regressor_source(["q0", "q1"], ["qd0", "qd1"], ["v0", "v1"], ["a0", "a1"])
+    for scale in (1e-6, 1.0, 50.0):
+        for _ in range(50):
+            q, qd, v, a = rng.normal(size=(4, 2)) * scale
+            env = {"_cos": math.cos, "_sin": math.sin, **{f"{s}{j}": float(z[j]) for s, z in
+                                                         (("q", q), ("qd", qd), ("v", v), ("a", a)) for j in range(2)}}
+            exec("\n".join(lines), env)
+            got = [[eval(e, env) for e in row] for row in Y]
+            assert got == spong.d2r2_regressor_single(q.tolist(), qd.tolist(), v.tolist(), a.tolist())
+    law = make_block("controller", "sp1", _ctx(), {}).law
+    inlined = spong.compile_scalar_law(law, packed=True)
+    assert "_cos(" in inlined.source and "self.regressor" not in inlined.source
+    called = {"_sqrt": math.sqrt, "_copysign": math.copysign}
+    exec(spong.scalar_law_source(2, 3, law._Lam, law._K, law._theta0, "sp1", packed=True), called)
+    for scale in (1e-3, 1.0, 30.0):
+        for _ in range(30):
+            x = (rng.normal(size=12) * scale).tolist()
+            assert inlined(law, x) == called["_law"](law, x)
