@@ -10,8 +10,9 @@
 3. Repair of serial7 dead-zone logs (``bench_repair.py``, each in its own process so its peak RSS is its
    own): CPU seconds, wall seconds and peak RSS at 20 s and 100 s of 1 kHz logs (19.5k / 99.5k rows x 7
    joints, fit and validation each).
-4. The confidence ellipsoid: the chordal SDP through Drake's MathematicalProgram (bundled Clarabel) and the
-   same data handed to pip clarabel, CPU seconds side by side; the closed-form energy bound at 1000 samples.
+4. The confidence ellipsoid: the chordal SDP through Drake's MathematicalProgram (bundled Clarabel, qdldl) and
+   the same data handed to pip clarabel with qdldl and with faer, CPU seconds side by side; the closed-form
+   energy bound at 1000 samples.
 
     OPENBLAS_NUM_THREADS=1 PYTHONPATH=. python benchmarks/bench_speed.py [--seconds 2] [--repeats 5]
         [--repair 20,100] [--repair-dir DIR] [--ellipsoid 30,100] [--energy-samples 1000]
@@ -138,28 +139,39 @@ def ellipsoid_table(counts: list[int], energy_samples: int) -> None:
     from robust_drake.uncertainty.regression import CI_BOUNDS, build_uncertainty_model
 
     print("\n4. Confidence ellipsoid (IMI SCARA, CI bounds), chordal SDP: Drake MathematicalProgram + bundled "
-          "Clarabel vs pip clarabel directly (CPU s of solve_ellipsoid: build, solve, 200-draw certificate / trace)")
-    print(f"{'samples':>8s} {'drake/clarabel':>22s} {'direct/clarabel':>22s} {'drake/direct':>12s}")
+          "Clarabel (qdldl; Drake 1.51 refuses the option direct_solve_method) vs pip clarabel directly with the "
+          "same qdldl and with faer (CPU s of solve_ellipsoid: build, solve, 200-draw certificate / trace)")
+    print(f"{'samples':>8s} {'drake/clarabel':>22s} {'direct qdldl':>22s} {'direct faer':>22s} "
+          f"{'drake/qdldl':>11s} {'drake/faer':>10s}")
 
     def model_of(n):
         d = simulate_identification(n, seed=0)
         return build_uncertainty_model(imi_scara_regressor, d["q"], d["qd"], d["qdd"], d["tau"], CI_BOUNDS)
 
+    method = os.environ.get("RD_CLARABEL_METHOD")
     for n in counts:
         model, row = model_of(n), {}
-        for backend in ("drake", "direct"):
+        for key, backend, kkt in (("drake", "drake", None), ("qdldl", "direct", "qdldl"), ("faer", "direct", "faer")):
+            if kkt:
+                os.environ["RD_CLARABEL_METHOD"] = kkt  # the direct backend's linear solver
             c = time.process_time()
             r = solve_ellipsoid(model, formulation="chordal", backend=backend, certify_draws=200)
-            row[backend] = (time.process_time() - c, r.trace)
-        (cd, td), (cx, tx) = row["drake"], row["direct"]
-        print(f"{n:8d} {cd:12.1f} / {td:8.3f} {cx:12.1f} / {tx:8.3f} {cd / cx:12.2f}")
+            row[key] = (time.process_time() - c, r.trace)
+        (cd, td), (cq, tq), (cf, tf) = row["drake"], row["qdldl"], row["faer"]
+        print(f"{n:8d} {cd:12.1f} / {td:8.3f} {cq:12.1f} / {tq:8.3f} {cf:12.1f} / {tf:8.3f} {cd / cq:11.2f} "
+              f"{cd / cf:10.2f}")
+    if method is None:
+        os.environ.pop("RD_CLARABEL_METHOD", None)
+    else:
+        os.environ["RD_CLARABEL_METHOD"] = method
     if energy_samples:
         model = model_of(energy_samples)
         c = time.process_time()
         r = solve_ellipsoid(model, formulation="energy", certify_draws=200)
         print(f"{energy_samples:8d} energy bound (closed form, no SDP): {time.process_time() - c:.1f} s CPU, trace "
               f"{r.trace:.3f} (BUILD_NOTES: 2.2-4x the SDP's)")
-    print("   aims: Drake no slower than the solver called directly; 1000 samples SDP-tight < 30 s")
+    print("   aims: Drake no slower than the solver called directly (at equal KKT solver: drake/qdldl); "
+          "1000 samples SDP-tight < 30 s")
 
 
 def main():

@@ -261,3 +261,57 @@ def test_logged_columns_are_the_signals_they_are_named_after():
     np.testing.assert_allclose(res.qdd_d, qdd_d, rtol=0, atol=1e-12)
     assert np.array_equal(res.tau, np.clip(res.u, -lim, lim)) and np.any(np.abs(res.u) > lim)
     assert res.v_hat.shape == res.q.shape and np.abs(res.v_hat - res.v).max() < 1.0
+
+
+def test_held_torque_is_written_to_its_own_group_with_one_or_more_groups():
+    """DiscreteController.write_u (the per-tick store of u): with u the only discrete group (the
+    one-group set_value) and beside another group (by index, the other group left as it was), the
+    stored torque is the one compute returned, ints included."""
+    from robust_drake.systems.controllers.base import DiscreteController
+
+    class Law(DiscreteController):
+        def __init__(self, extra):
+            super().__init__(2, T, name="law")
+            self.extra = self.DeclareDiscreteState(np.array([7.0, 8.0, 9.0])) if extra else None
+
+        def compute(self, t, q_d, qd_d, qdd_d, q, v, v_error):
+            return [int(3), q[0] * 2.0 - v_error[1]]
+
+    for extra in (False, True):
+        law = Law(extra)
+        ctx = law.CreateDefaultContext()
+        for port, val in (("x_d", np.zeros(6)), ("q", [0.25, 0.0]), ("v", [0.0, 0.0]), ("v_error", [0.0, 1.5])):
+            law.GetInputPort(port).FixValue(ctx, val)
+        new = law.EvalUniquePeriodicDiscreteUpdate(ctx)
+        assert new.num_groups() == (2 if extra else 1)
+        np.testing.assert_array_equal(new.get_vector(law._u_index).CopyToVector(), [3.0, 0.5 - 1.5])
+        if extra:
+            np.testing.assert_array_equal(new.get_vector(law.extra).CopyToVector(), [7.0, 8.0, 9.0])
+
+
+def test_inlined_d2r2_regressor_is_the_function_bit_for_bit():
+    """d2r2_regressor_source (JS eq. 15 written into the SP1/SP2 per-tick law) executes to the very
+    floats of d2r2_regressor_single, and the law compiled with it gives the law compiled around the call."""
+    import math
+
+    from robust_drake.systems.controllers import spong
+
+    rng = np.random.default_rng(11)
+    lines, Y = spong.d2r2_regressor_source(["q0", "q1"], ["qd0", "qd1"], ["v0", "v1"], ["a0", "a1"])
+    for scale in (1e-6, 1.0, 50.0):
+        for _ in range(50):
+            q, qd, v, a = rng.normal(size=(4, 2)) * scale
+            env = {"_cos": math.cos, "_sin": math.sin, **{f"{s}{j}": float(z[j]) for s, z in
+                                                         (("q", q), ("qd", qd), ("v", v), ("a", a)) for j in range(2)}}
+            exec("\n".join(lines), env)
+            got = [[eval(e, env) for e in row] for row in Y]
+            assert got == spong.d2r2_regressor_single(q.tolist(), qd.tolist(), v.tolist(), a.tolist())
+    law = make_block("controller", "sp1", _ctx(), {}).law
+    inlined = spong.compile_scalar_law(law, packed=True)
+    assert "_cos(" in inlined.source and "self.regressor" not in inlined.source
+    called = {"_sqrt": math.sqrt, "_copysign": math.copysign}
+    exec(spong.scalar_law_source(2, 3, law._Lam, law._K, law._theta0, "sp1", packed=True), called)
+    for scale in (1e-3, 1.0, 30.0):
+        for _ in range(30):
+            x = (rng.normal(size=12) * scale).tolist()
+            assert inlined(law, x) == called["_law"](law, x)

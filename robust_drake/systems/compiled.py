@@ -10,6 +10,13 @@ block here carries one dummy continuous state z with z' = 0, which the law does 
 LeafSystem of the project would have (e.g. ``state`` -> ``generalized_force``), so it is wired,
 named and replaced like any other block.  The Python reference of every law built this way is
 kept beside it and tested equal (tests/test_compiled_blocks.py).
+
+What a block costs per 2500 Hz tick of the D2R2 loop (callgrind instructions inside
+``Simulator.AdvanceTo``, pydrake 1.51; the plant alone is 95.5k): every extra leaf system about
+2.2-2.5k (a PassThrough or a ConstantVectorSource added beside the plant: Drake's time and state
+change notifications, event collections and next-update-time queries visit every context), and
+the Diagram around a single leaf that gives it named ports another 4.2-4.4k (its DiagramContext and
+exported ports); the dummy state's derivative here about 1.9k per evaluation (two per RK2 step).
 """
 
 from __future__ import annotations

@@ -114,7 +114,8 @@ def spong_law(regressor, robust_input, theta0, K, Lambda, q_d, qd_d, qdd_d, q, v
     return spong_torque(Y, theta0, u, K, r)
 
 
-def scalar_law_source(n: int, p: int, Lam, K, theta0, robust: str, packed: bool = False) -> str:
+def scalar_law_source(n: int, p: int, Lam, K, theta0, robust: str, packed: bool = False,
+                      regressor_source=None) -> str:
     """Python source of one SP1/SP2 sample for n joints and p parameters, straight-line (no loop,
     list or generator per sample): JS eq. 11 (q~, r, v, a), Y = regressor(q, q', v, a) (n x p nested
     lists), xi = Y^T r, the robust input u (``robust`` "sp1": eq. 18 with ``self.rho``,
@@ -123,21 +124,32 @@ def scalar_law_source(n: int, p: int, Lam, K, theta0, robust: str, packed: bool 
     starts from 0.0 and adds in index order, as :func:`spong_law`'s loops.  The function is
     ``f(self, q_d, qd_d, qdd_d, q, v, v_error) -> list of n torques``, or with ``packed``
     ``f(self, x)`` on the one list x = [q_d, qd_d, qdd_d, q, v, v_error] (6n) that the fused input
-    port delivers (same operations in the same order, so the same floats)."""
+    port delivers (same operations in the same order, so the same floats).  ``regressor_source``
+    (the regressor's ``scalar_source``, e.g. :func:`d2r2_regressor_source`) writes Y inline instead of
+    the call: ``regressor_source(q, qd, v, a)`` -> (source lines, n x p entry expressions), the same
+    operations as the regressor (no call, no nested lists per sample)."""
     if packed:
-        L = ["def _law(self, x):", f"    q = x[{3 * n}:{4 * n}]", f"    v = x[{4 * n}:{5 * n}]"]
-        q_d, qd_d, qdd_d, q, ve = (lambda j, o=o: f"x[{o * n + j}]" for o in (0, 1, 2, 3, 5))
+        L = ["def _law(self, x):"]
+        q_d, qd_d, qdd_d, q, vh, ve = (lambda j, o=o: f"x[{o * n + j}]" for o in (0, 1, 2, 3, 4, 5))
+        if regressor_source is None:
+            L += [f"    q = x[{3 * n}:{4 * n}]", f"    v = x[{4 * n}:{5 * n}]"]
     else:
         L = ["def _law(self, q_d, qd_d, qdd_d, q, v, ve):"]
-        q_d, qd_d, qdd_d, q, ve = (lambda j, s=s: f"{s}[{j}]" for s in ("q_d", "qd_d", "qdd_d", "q", "ve"))
+        q_d, qd_d, qdd_d, q, vh, ve = (lambda j, s=s: f"{s}[{j}]" for s in ("q_d", "qd_d", "qdd_d", "q", "v", "ve"))
     for j in range(n):
         lam = repr(float(Lam[j]))
         L += [f"    qt{j} = {q(j)} - {q_d(j)}", f"    r{j} = {ve(j)} + {lam} * qt{j}",
               f"    vr{j} = {qd_d(j)} - {lam} * qt{j}", f"    a{j} = {qdd_d(j)} - {lam} * {ve(j)}"]
     rs, vrs, as_ = (", ".join(f"{x}{j}" for j in range(n)) for x in ("r", "vr", "a"))
-    L.append(f"    Y = self.regressor(q, v, [{vrs}], [{as_}])")
-    L += [f"    Y{i} = Y[{i}]" for i in range(n)]
-    L += [f"    x{k} = 0.0 + " + " + ".join(f"Y{i}[{k}] * r{i}" for i in range(n)) for k in range(p)]
+    if regressor_source is None:
+        L.append(f"    Y = self.regressor(q, v, [{vrs}], [{as_}])")
+        L += [f"    Y{i} = Y[{i}]" for i in range(n)]
+        Y = [[f"Y{i}[{k}]" for k in range(p)] for i in range(n)]
+    else:
+        lines, Y = regressor_source([q(j) for j in range(n)], [vh(j) for j in range(n)],
+                                    [f"vr{j}" for j in range(n)], [f"a{j}" for j in range(n)])
+        L += [f"    {line}" for line in lines]
+    L += [f"    x{k} = 0.0 + " + " + ".join(f"{Y[i][k]} * r{i}" for i in range(n)) for k in range(p)]
     if robust == "sp1":
         L += ["    rho, eps = self.rho, self.epsilon",
               "    norm = _sqrt(0.0 + " + " + ".join(f"x{k} * x{k}" for k in range(p)) + ")",
@@ -151,7 +163,7 @@ def scalar_law_source(n: int, p: int, Lam, K, theta0, robust: str, packed: bool 
         L.append("    u = self.robust_input([" + ", ".join(f"x{k}" for k in range(p)) + "])")
         L += [f"    w{k} = {repr(float(theta0[k]))} + u[{k}]" for k in range(p)]
     L.append("    return [" + ", ".join(
-        "0.0 + " + " + ".join(f"Y{i}[{k}] * w{k}" for k in range(p)) + f" - {repr(float(K[i]))} * r{i}"
+        "0.0 + " + " + ".join(f"{Y[i][k]} * w{k}" for k in range(p)) + f" - {repr(float(K[i]))} * r{i}"
         for i in range(n)) + "]")
     return "\n".join(L) + "\n"
 
@@ -166,8 +178,9 @@ def compile_scalar_law(ctrl, packed: bool = False):
         robust = "sp1"
     elif type(ctrl).robust_input is SpongSP2Controller.robust_input:
         robust = "sp2"
-    src = scalar_law_source(ctrl.n, len(ctrl._theta0), ctrl._Lam, ctrl._K, ctrl._theta0, robust, packed)
-    ns = {"_sqrt": math.sqrt, "_copysign": math.copysign}
+    src = scalar_law_source(ctrl.n, len(ctrl._theta0), ctrl._Lam, ctrl._K, ctrl._theta0, robust, packed,
+                            getattr(ctrl.regressor, "scalar_source", None))
+    ns = {"_sqrt": math.sqrt, "_copysign": math.copysign, "_cos": math.cos, "_sin": math.sin}
     exec(compile(src, f"<{type(ctrl).__name__} law>", "exec"), ns)
     f = ns["_law"]
     f.source = src
@@ -243,14 +256,14 @@ class _SpongController(DiscreteController):
             if self._feedforward:
                 qa, va = np.array(x[3 * n:4 * n]), np.array(x[4 * n:5 * n])
                 u = np.asarray(u, dtype=float) + sum(np.asarray(f(qa, va), dtype=float) for f in self._feedforward)
-            discrete_state.set_value(self._u_index, u)
+            self.write_u(discrete_state, u)
             return
         x_d = self._x_d_port.Eval(context).tolist()
         u = self._scalar_law(x_d[:n], x_d[n:2 * n], x_d[2 * n:], self._q_port.Eval(context).tolist(),
                              self._v_port.Eval(context).tolist(), self._v_error_port.Eval(context).tolist())
         if self._feedforward:
             u = self.with_feedforward(context, u)
-        discrete_state.set_value(self._u_index, u)
+        self.write_u(discrete_state, u)
 
 
 class FusedInputController(Diagram):
@@ -326,6 +339,20 @@ def d2r2_regressor_single(q, qd, v, a) -> list:
     y13 = c2 * (2.0 * a1 + a2) - s2 * (qd[0] * v[1] + qd[1] * (v[0] + v[1]))
     y23 = c2 * a1 + s2 * qd[0] * v[0]
     return [[a1, a1 + a2, y13], [0.0, a1 + a2, y23]]
+
+
+def d2r2_regressor_source(q, qd, v, a) -> tuple[list, list]:
+    """:func:`d2r2_regressor_single` as straight-line source for :func:`scalar_law_source`: ``q``,
+    ``qd``, ``v``, ``a`` are the expressions (strings) of the entries; returns (lines, Y) with Y the
+    2 x 3 entry expressions.  Same operations in the same order as the function (so the same
+    floats; tests/test_compiled_blocks.py), with ``_cos``/``_sin`` = math.cos/math.sin."""
+    lines = [f"_c2 = _cos({q[1]})", f"_s2 = _sin({q[1]})", f"_y12 = {a[0]} + {a[1]}",
+             f"_y13 = _c2 * (2.0 * {a[0]} + {a[1]}) - _s2 * ({qd[0]} * {v[1]} + {qd[1]} * ({v[0]} + {v[1]}))",
+             f"_y23 = _c2 * {a[0]} + _s2 * {qd[0]} * {v[0]}"]
+    return lines, [[a[0], "_y12", "_y13"], ["0.0", "_y12", "_y23"]]
+
+
+d2r2_regressor_single.scalar_source = d2r2_regressor_source
 
 
 @dataclass(frozen=True)
