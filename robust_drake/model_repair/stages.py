@@ -1,8 +1,8 @@
-"""The repair pipeline as stages; ``repair.run_repair`` runs them in this order::
+"""The repair pipeline as stages; ``pipeline.run_repair`` runs them in this order::
 
-    load_inputs -> fit_baseline -> choose_estimator -> select_effects -> resolve_torque_scale
-      -> never_worse -> final_model -> compare_nominal -> consistent_fits -> replay_models
-      -> replay_guard -> RepairResult (rendered by report.py)
+    load_inputs -> fit_baseline -> (setup change) -> choose_estimator -> select_effects
+      -> resolve_torque_scale -> never_worse -> replay_guard (final_model, consistent_fits,
+      replay_models per attempt) -> compare_nominal -> RepairResult (rendered by report.py)
 
 Each stage takes and returns small dataclasses. The estimator travels in one typed form,
 :class:`Estimator` (least squares or instrumental variables with its instrument columns).
