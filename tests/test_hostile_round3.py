@@ -179,6 +179,19 @@ def test_two_logs_joined_with_shifted_stamps_are_flagged_and_split(sim, tmp_path
     assert said and set(said) <= set(json.load(open(out / "report.json"))["warnings"])
 
 
+def test_a_run_that_starts_accelerating_is_not_a_joined_log():
+    """The first step of a run may exceed the second by a second difference (a hard start: the
+    demo's D2R2 validation run, q2 steps 3.35 then 3.00 mrad); with one neighbour that is no jump."""
+    from robust_drake.identification.conditioning import position_jumps
+
+    t = np.arange(0.0, 4.0, 0.004)
+    # joint 1 starts with a fast transient (steps 3.05, 2.58, 2.34 mrad, then the sine's ~2.1)
+    q = np.column_stack([0.3 + 0.9 * np.sin(2.1 * t), 0.34 + 0.4 * np.sin(1.3 * t) + 0.002 * (1 - np.exp(-t / 0.006))])
+    assert position_jumps(q) == []
+    q[600:, 1] += 0.05  # a real jump in the middle is still found
+    assert [(k, j) for k, j, _, _ in position_jumps(q)] == [(599, 1)]
+
+
 def test_wrapped_angle_is_unwrapped_not_split(sim, tmp_path):
     from robust_drake.identification.data import load
 

@@ -267,6 +267,10 @@ def position_jumps(q: np.ndarray, alpha: float = JUMP_ALPHA) -> list[tuple[int, 
             continue
         neighbours = np.maximum(np.r_[0.0, a[:-1]], np.r_[a[1:], 0.0])
         z = (a - neighbours) / scale
+        # the first and last steps have one neighbour: e_k is then only a second difference (a
+        # run that starts or stops accelerating hard), not a jump; a cut there would leave one
+        # sample, which the filter trim drops anyway
+        z[0] = z[-1] = 0.0
         out += [(int(k), j, float(dq[k, j]), float(z[k])) for k in np.nonzero(z > zlim)[0]]
     return sorted(out)
 
