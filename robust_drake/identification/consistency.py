@@ -167,20 +167,12 @@ def integrated_correlation(residual: np.ndarray, segment: np.ndarray | None = No
     """c = 1 + 2 sum_k rho_k [samples]: the integrated autocorrelation time of a residual (N, n),
     autocorrelation pooled over the gap-free segments, summed up to the first lag where it is <= 0
     (initial positive sequence); the largest over the joints, at least 1 (white noise: 1)."""
-    r = np.asarray(residual, float)
-    r = r[:, None] if r.ndim == 1 else r
-    seg = np.zeros(len(r), int) if segment is None else np.asarray(segment)
-    idxs = [np.nonzero(seg == s)[0] for s in np.unique(seg)]
-    max_lag = max(1, min(len(i) for i in idxs) // 2)
-    acc = np.zeros((max_lag, r.shape[1]))
-    for idx in idxs:
-        x = r[idx] - r[idx].mean(axis=0)
-        nfft = 1 << int(np.ceil(np.log2(2 * len(x))))
-        F = np.fft.rfft(x, nfft, axis=0)
-        acc += np.fft.irfft(np.abs(F) ** 2, nfft, axis=0)[:max_lag]
-    rho = acc / np.maximum(acc[0], 1e-300)
+    from robust_drake.identification.data import pooled_autocorrelation
+
+    rho = pooled_autocorrelation(residual, segment)
+    max_lag = rho.shape[0]
     best = 1.0
-    for j in range(r.shape[1]):
+    for j in range(rho.shape[1]):
         neg = np.nonzero(rho[1:, j] <= 0)[0]
         stop = int(neg[0]) + 1 if len(neg) else max_lag
         best = max(best, 1.0 + 2.0 * float(np.sum(rho[1:stop, j])))

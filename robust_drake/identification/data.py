@@ -243,6 +243,24 @@ def n_effective(data: IdentData) -> float:
     return float(data.N) * min(1.0, 2.0 * fc * data.dt)
 
 
+def pooled_autocorrelation(residual: np.ndarray, segment: np.ndarray | None = None) -> np.ndarray:
+    """Autocorrelation rho (L, n) of a residual (N, n) at lags 0..L-1, pooled over the gap-free
+    segments (sum of lagged products of the de-meaned segments over their sum of squares, by FFT);
+    L = half the shortest segment (at least 1)."""
+    r = np.asarray(residual, float)
+    r = r[:, None] if r.ndim == 1 else r
+    seg = np.zeros(len(r), int) if segment is None else np.asarray(segment)
+    idxs = [np.nonzero(seg == s)[0] for s in np.unique(seg)]
+    max_lag = max(1, min(len(i) for i in idxs) // 2)
+    acc = np.zeros((max_lag, r.shape[1]))
+    for idx in idxs:
+        x = r[idx] - r[idx].mean(axis=0)
+        nfft = 1 << int(np.ceil(np.log2(2 * len(x))))
+        F = np.fft.rfft(x, nfft, axis=0)
+        acc += np.fft.irfft(np.abs(F) ** 2, nfft, axis=0)[:max_lag]
+    return acc / np.maximum(acc[0], 1e-300)
+
+
 def decimation(data: IdentData) -> int:
     """Samples per independent sample after the low-pass, round(1 / (2 f_c dt)) (>= 1): N /
     decimation is the effective count the residual tests use."""

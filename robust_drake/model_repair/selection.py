@@ -130,19 +130,12 @@ def correlation_time(data: IdentData, residual: np.ndarray, threshold: float = C
     """Correlation time [s] of ``residual`` (N, n): the first lag at which its autocorrelation,
     pooled over the gap-free segments (sum of lagged products over the sum of squares), falls
     below ``threshold``; the largest over the joints. Lags up to half the shortest segment."""
-    r = np.asarray(residual, float)
-    segs = [np.nonzero(data.segment == s)[0] for s in np.unique(data.segment)]
-    L = min(len(i) for i in segs)
-    max_lag = max(1, L // 2)
-    acc = np.zeros((max_lag, r.shape[1]))
-    for idx in segs:
-        x = r[idx] - r[idx].mean(axis=0)
-        nfft = 1 << int(np.ceil(np.log2(2 * len(x))))
-        F = np.fft.rfft(x, nfft, axis=0)
-        acc += np.fft.irfft(np.abs(F) ** 2, nfft, axis=0)[:max_lag]
-    rho = acc / np.maximum(acc[0], 1e-300)
+    from robust_drake.identification.data import pooled_autocorrelation
+
+    rho = pooled_autocorrelation(residual, data.segment)
+    max_lag = rho.shape[0]
     lags = []
-    for j in range(r.shape[1]):
+    for j in range(rho.shape[1]):
         below = np.nonzero(rho[:, j] < threshold)[0]
         lags.append(int(below[0]) if len(below) else max_lag)
     return float(max(lags)) * float(data.dt)
