@@ -300,8 +300,9 @@ def _reflected_inertia(arm: str) -> float:
 
 
 def claimed(rep: dict) -> list[tuple]:
-    """(kind, joint, confidence) of every effect a repair report accepted."""
-    return [(e["kind"], e.get("joint"), e.get("confidence")) for e in rep.get("effects", [])]
+    """(kind, joint, confidence) of every effect a repair report accepted and claims (an effect
+    kept while the validation run does not match the fit run, ``setup_change``, is not claimed)."""
+    return [(e["kind"], e.get("joint"), e.get("confidence")) for e in rep.get("effects", []) if e.get("claimed", True)]
 
 
 def matches(rep: dict, truth: dict) -> dict:
