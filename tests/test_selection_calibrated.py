@@ -18,6 +18,7 @@ from fourier_motion import fourier_motion
 from scipy import stats
 
 from robust_drake.identification.data import zero_phase_lowpass
+from given_columns import GivenColumns
 from robust_drake.identification.fitting import ColumnCache
 from robust_drake.identification.least_squares import RANK_TOL, load_regressor, solve_gram
 from robust_drake.model_repair import selection as SEL
@@ -27,22 +28,7 @@ from robust_drake.model_repair.effects import PhysicalContext, all_candidates, m
 C1 = "dfki_double_pendulum_c1"
 
 
-class _Cache(ColumnCache):
-    """Column cache with the base columns given (no regressor, no filter); effects as given."""
-
-    def __init__(self, data, cols, names):
-        self.data = self.source = data
-        self.exclude = self.keep = None
-        self.base, self.base_names, self.n_rigid = np.ascontiguousarray(cols, float), list(names), 0
-        self._effects, self._grams, self._lefts = {}, {}, {}
-        self._last_prediction = (None, None)
-
-    def effect(self, effect):
-        key = self._key(effect)
-        if key not in self._effects:
-            c, nm = effect.columns(self.data)
-            self._effects[key] = (np.ascontiguousarray(c, float), list(nm), effect)
-        return self._effects[key][:2]
+_Cache = GivenColumns  # base columns given; effect columns as the effects give them
 
 
 def _one_joint(seconds, dt=0.004, seed=0, cutoff=8.0):

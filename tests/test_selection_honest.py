@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from robust_drake.identification.fitting import ColumnCache
+from given_columns import GivenColumns
 from robust_drake.model_repair import selection as SEL
 from robust_drake.model_repair.effects import EFFECTS, PhysicalContext, delay_bound, make_effect
 
@@ -109,23 +109,7 @@ def test_confirmation_block_is_the_segment_tail_behind_a_gap():
     assert info["confirm_rows"] == int(confirm.sum())
 
 
-class _Cache(ColumnCache):
-    """Minimal column cache: base columns [sign(qd), qd] (friction fc1, fv1) + effect columns
-    taken as given (no regressor, no filter); the block bookkeeping is ColumnCache's own."""
-
-    def __init__(self, data, cols):
-        self.data = self.source = data
-        self.exclude = self.keep = None
-        self.base, self.base_names, self.n_rigid = np.ascontiguousarray(cols, float), ["fc1", "fv1"], 0
-        self._effects, self._grams, self._lefts = {}, {}, {}
-        self._last_prediction = (None, None)
-
-    def effect(self, effect):
-        key = self._key(effect)
-        if key not in self._effects:
-            c, nm = effect.columns(self.data)
-            self._effects[key] = (np.ascontiguousarray(c, float), list(nm), effect)
-        return self._effects[key][:2]
+_Cache = GivenColumns  # base columns given; effect columns as the effects give them
 
 
 def _friction_case(seconds=60.0, dt=0.01, seed=0):
