@@ -1,4 +1,4 @@
-"""Run the issue-13 battery (robust_drake.model_repair.battery) and print its table.
+"""Run the issue-13 battery (robust_drake.synthetic.battery) and print its table.
 
 Usage (from the repository root):
     OPENBLAS_NUM_THREADS=1 python benchmarks/battery_table.py [--arms siciliano_2link,...]
@@ -13,7 +13,7 @@ import sys
 import tempfile
 import time
 
-from robust_drake.model_repair import battery as B
+from robust_drake.synthetic import battery as B
 
 
 def main(argv=None):

@@ -14,8 +14,8 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
-from robust_drake.model_repair.effects import EFFECTS, all_candidates  # noqa: E402
-from robust_drake.model_repair.simulated import HIDDEN_CASES, simulate_experiment  # noqa: E402
+from robust_drake.effects import EFFECTS, all_candidates  # noqa: E402
+from robust_drake.synthetic.simulated import HIDDEN_CASES, simulate_experiment  # noqa: E402
 
 ROBOT = "dfki_double_pendulum_c1"
 DURATION = 6.0

@@ -114,7 +114,7 @@ def main(argv=None):
 
     matplotlib.use("Agg")
     from robust_drake.model_repair.pipeline import RepairOptions, run_repair
-    from robust_drake.model_repair.simulated_cases import outside_case
+    from robust_drake.synthetic.simulated_cases import outside_case
 
     folder = args.keep or tempfile.mkdtemp(prefix="bench_repair_")
     t = time.perf_counter()

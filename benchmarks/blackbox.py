@@ -120,8 +120,8 @@ def _load(paths, model):
 
 
 def run(arm, case, rate, duration, seed):
-    from robust_drake.model_repair import arm_battery as AB
-    from robust_drake.model_repair.model import IdentifiedModel
+    from robust_drake.synthetic import arm_battery as AB
+    from robust_drake.identification.model import IdentifiedModel
     from robust_drake.model_repair.pipeline import RepairOptions, run_repair
 
     out = tempfile.mkdtemp(prefix="blackbox_")

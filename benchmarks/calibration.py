@@ -46,7 +46,7 @@ def clopper_pearson(k: int, n: int, level: float = 0.95) -> tuple[float, float]:
 def run_one(item: dict) -> dict:
     """Generate and repair one (arm, case / kind, level, seed) item; the scored row."""
     from robust_drake.errors import RobustDrakeError
-    from robust_drake.model_repair import arm_battery as AB
+    from robust_drake.synthetic import arm_battery as AB
     from robust_drake.model_repair.pipeline import RepairOptions, run_repair
 
     out = tempfile.mkdtemp(prefix="calib_")
@@ -73,7 +73,7 @@ def run_one(item: dict) -> dict:
 
 def _battery_row(item, generated) -> dict:
     """Repair one battery case (``arm_battery.generate``) and score it against its truth."""
-    from robust_drake.model_repair import arm_battery as AB
+    from robust_drake.synthetic import arm_battery as AB
     from robust_drake.model_repair.pipeline import RepairOptions, run_repair
 
     fits, vals, truth = generated
@@ -163,7 +163,7 @@ def detect_table(rows, arms) -> list[str]:
 
 
 def main(argv=None):
-    from robust_drake.model_repair import arm_battery as AB
+    from robust_drake.synthetic import arm_battery as AB
     from robust_drake.model_repair.decisions import LEVEL
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -204,7 +204,7 @@ def main(argv=None):
         r.setdefault("joint", None)
     text = [f"# Repair calibration (benchmarks/calibration.py)", "",
             "Each case: one fit and one validation run (different motions) of the stated length and rate, current-based torque "
-            f"noise (robust_drake/model_repair/arm_battery.py eq. 1); repair with replay and plots off, "
+            f"noise (robust_drake/synthetic/arm_battery.py eq. 1); repair with replay and plots off, "
             f"consistent=False.  Detection: 'named' = the kind on its joint accepted.  Command: `{' '.join(['python benchmarks/calibration.py'] + (argv or sys.argv[1:]))}`", "",
             "## False acceptance on no-effect data", ""] + fa_table(rows, arms, LEVEL)
     text += ["", "## Detection per library kind", ""] + detect_table(rows, arms)

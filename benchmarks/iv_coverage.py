@@ -29,7 +29,7 @@ from scipy.stats import chi2
 def main(argv=None) -> dict:
     from robust_drake.experiments import logs_to_control as L
     from robust_drake.identification import instruments as IV
-    from robust_drake.model_repair import simulated
+    from robust_drake.synthetic import simulated
     from robust_drake.regressor import InverseDynamicsRegressor
     from robust_drake.uncertainty.confidence import confidence_ellipsoid, mahalanobis_radius
 

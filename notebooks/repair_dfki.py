@@ -43,7 +43,7 @@ from robust_drake.model_repair import residual as R
 from robust_drake.identification.data import DataWarning, load
 from robust_drake.identification.least_squares import load_regressor
 from robust_drake.model_repair.selection import ColumnCache, fit_model, predict_tau
-from robust_drake.model_repair.simulated import hidden_effect_case
+from robust_drake.synthetic.simulated import hidden_effect_case
 
 warnings.simplefilter("ignore", DataWarning)
 SHORT = os.environ.get("ROBUST_DRAKE_SHORT") == "1"

@@ -38,7 +38,7 @@ _LAZY = {
     "repair": "robust_drake.api",
     "identify": "robust_drake.api",
     "control": "robust_drake.api",
-    "IdentifiedModel": "robust_drake.model_repair.model",
+    "IdentifiedModel": "robust_drake.identification.model",
     "RepairResult": "robust_drake.model_repair.result",
     "ellipsoid": "robust_drake.api",
     "run_batch": "robust_drake.api",

@@ -20,7 +20,7 @@ if TYPE_CHECKING:  # pragma: no cover - for type checkers only
     import pandas as pd
 
     from robust_drake.diagram import ClosedLoop, ClosedLoopConfig, SimulationResult
-    from robust_drake.model_repair.model import IdentifiedModel
+    from robust_drake.identification.model import IdentifiedModel
     from robust_drake.model_repair.result import RepairResult
     from robust_drake.uncertainty.ellipsoid import EllipsoidResult
     from robust_drake.scenario import Scenario
@@ -192,7 +192,7 @@ def identify(logs: Any, robot: str, *, validate: Any = None, torque: str = "tau_
         Base parameters [SI] with covariance, friction ``coulomb`` [N m] / ``viscous``
         [N m s/rad], ``estimator``; ``data["rms_validate"]`` [N m] per joint.
     """
-    from robust_drake.model_repair.identify import identify as _identify
+    from robust_drake.identification.identify import identify as _identify
 
     return _identify(logs, robot, validate=validate, torque=torque, cutoff_hz=cutoff_hz, velocities=velocities,
                      estimator=estimator, progress=progress)
@@ -645,11 +645,11 @@ def simulate_experiment(robot: str, effects: Any = (), *, duration: float = 10.0
     out_csv : str, optional
         Where to write the log.
     **options
-        ``model_repair.simulated.simulate_experiment`` keywords (``rate_hz``, ``coulomb``,
+        ``synthetic.simulated.simulate_experiment`` keywords (``rate_hz``, ``coulomb``,
         ``viscous``, ``torque_noise_std`` [N m], ``encoder_resolution`` [rad], ...).
     """
     from robust_drake.experiments.logs_to_control import excitation_for
-    from robust_drake.model_repair.simulated import simulate_experiment as _simulate
+    from robust_drake.synthetic.simulated import simulate_experiment as _simulate
 
     excitation = excitation_for(robot)
     if reference is not None:

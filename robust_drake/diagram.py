@@ -203,7 +203,7 @@ class ClosedLoopConfig:
         Two-mass drives and structural modes (:mod:`robust_drake.systems.flexibility`);
         None: rigid arm.
     model : IdentifiedModel, str, dict or None
-        The controller's model: an :class:`~robust_drake.model_repair.model.IdentifiedModel`, a
+        The controller's model: an :class:`~robust_drake.identification.model.IdentifiedModel`, a
         repair's ``report.json`` (or its folder) / a model file, or a model's JSON dict. SP1,
         SP2, CI eq. 15 and BR Case A/B take theta0 and their uncertainty set from it (its
         confidence set); its friction and (q, v) effects are fed forward, its stateful effects
@@ -390,7 +390,7 @@ def _identified(m, what: str):
     """``ClosedLoopConfig.model`` / ``plant_model`` as an IdentifiedModel (None stays None)."""
     if m is None:
         return None
-    from robust_drake.model_repair.model import as_identified_model
+    from robust_drake.identification.model import as_identified_model
 
     try:
         return as_identified_model(m)

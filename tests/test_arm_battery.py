@@ -1,4 +1,4 @@
-"""The UR5-class arm and the issue-21 battery generator (robust_drake.model_repair.arm_battery).
+"""The UR5-class arm and the issue-21 battery generator (robust_drake.synthetic.arm_battery).
 
 Truth here is computed independently of the code under test: UR's DH table gives the tool
 position (standard DH forward kinematics in numpy), Drake's mass matrix / bias / gravity give
@@ -15,7 +15,7 @@ import pytest
 
 from robust_drake.description import describe
 from robust_drake.models import make_plant
-from robust_drake.model_repair import arm_battery as AB
+from robust_drake.synthetic import arm_battery as AB
 
 #: UR5 (CB3) DH table and masses as published (UR's DH article; ur_description)
 DH_D = (0.089159, 0.0, 0.0, 0.10915, 0.09465, 0.0823)

@@ -2,7 +2,7 @@
 
 Arms: the Sciavicco-Siciliano 2-link vertical arm, the PUMA 560's first three joints
 (``robots/puma560_3link``, Armstrong-Khatib-Burdick inertias) and the 7-joint ``serial7``; cases
-and their generation in :mod:`robust_drake.model_repair.battery` (8 s runs at 250 Hz, fit and
+and their generation in :mod:`robust_drake.synthetic.battery` (8 s runs at 250 Hz, fit and
 validation on different motions). Every case is repaired once (module cache) and asserted:
 
 - ``none``: nothing claimed, nothing flagged;
@@ -20,7 +20,7 @@ validation on different motions). Every case is repaired once (module cache) and
   on its joint, amplitude / threshold within ``battery.DIAGNOSTIC_KEY``'s tolerance, the
   frequency within 1 %, a periodic torque reported as a disturbance (``is_disturbance``), the
   joint's validation halved; nothing else claimed with high confidence, nothing misattributed;
-- effects outside the library (backlash -- generator side, :mod:`robust_drake.model_repair.backlash`
+- effects outside the library (backlash -- generator side, :mod:`robust_drake.synthetic.backlash`
   -- and the friction drift: ``friction_drift`` is offered only where the drift diagnostic fires,
   which it does on neither arm's 8 s runs): flagged as unexplained structure on its joint,
   nothing claimed with high confidence, no misattributed kind (``test_outside_library.MISATTRIBUTED``);
@@ -40,8 +40,8 @@ import numpy as np
 import pytest
 from test_outside_library import EXPECTED_TEST, MISATTRIBUTED
 
-from robust_drake.model_repair import battery as B
-from robust_drake.model_repair.backlash import BacklashDrive, contact_parameters, dead_zone, transmitted_torque
+from robust_drake.synthetic import battery as B
+from robust_drake.synthetic.backlash import BacklashDrive, contact_parameters, dead_zone, transmitted_torque
 
 pytest.importorskip("robust_drake.model_repair.pipeline")
 

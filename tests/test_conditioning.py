@@ -25,7 +25,7 @@ DURATION = 8.0
 
 
 def _sim(robot, rate_hz, seed, duration=DURATION):
-    from robust_drake.model_repair.simulated import simulate_experiment
+    from robust_drake.synthetic.simulated import simulate_experiment
 
     if robot == ARM7:
         return simulate_experiment(robot, duration=duration, rate_hz=rate_hz, seed=seed,
@@ -242,7 +242,7 @@ def test_repair_runs_on_jittered_gappy_files_of_unequal_length(arm2, tmp_path):
 
 # ----------------------------------------------------------------------------- velocities
 def test_logged_velocities(tmp_path):
-    from robust_drake.model_repair.simulated import simulate_experiment
+    from robust_drake.synthetic.simulated import simulate_experiment
 
     df = simulate_experiment(ARM2, duration=6.0, rate_hz=500.0, seed=2, include_velocity=True)
     p = _write(df, tmp_path / "v.csv")

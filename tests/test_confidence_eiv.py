@@ -8,7 +8,7 @@ import pytest
 from robust_drake.errors import RobustDrakeError
 from robust_drake.experiments.calafiore import IMI_THETA_TRUE, exciting_trajectory
 from robust_drake.identification.least_squares import solve_ls
-from robust_drake.model_repair.model import IdentifiedModel
+from robust_drake.identification.model import IdentifiedModel
 from robust_drake.regressor import imi_scara_regressor
 from robust_drake.uncertainty.confidence import (acceleration_noise_directions, confidence_ellipsoid,
                                                  corrected_least_squares, eiv_confidence_ellipsoid,

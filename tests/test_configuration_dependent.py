@@ -17,12 +17,12 @@ import pytest
 import robust_drake as rd
 from robust_drake.errors import RobustDrakeError
 from robust_drake.identification.least_squares import load_regressor
-from robust_drake.model_repair.effects import (
+from robust_drake.effects import (
     EFFECTS, PhysicalContext, PositionDependent, all_candidates, gravity_aliases, make_effect,
 )
 from robust_drake.model_repair.residual import configuration_dependence
-from robust_drake.model_repair.simulated import simulate_experiment
-from robust_drake.model_repair.simulated_cases import ARMS
+from robust_drake.synthetic.simulated import simulate_experiment
+from robust_drake.synthetic.simulated_cases import ARMS
 
 PUMA = "puma560_3link"
 C1 = "dfki_double_pendulum_c1"

@@ -8,13 +8,13 @@ import numpy as np
 from robust_drake.identification.conditioning import STICK_SPEED
 from robust_drake.model_repair.pipeline import RepairOptions, run_repair
 from robust_drake.model_repair.report import annotate_effects, grid_edge, once
-from robust_drake.model_repair.simulated import DEFAULT_ROBOT, hidden_effect_case, simulate_experiment
+from robust_drake.synthetic.simulated import DEFAULT_ROBOT, hidden_effect_case, simulate_experiment
 
 
 def test_poor_excitation_warned_once_with_one_condition_number(tmp_path):
     """serial7 with its last two joints moving 2 mrad (a few encoder counts): their parameters are
     unidentifiable; every fit of the loop warns, the report keeps one short line."""
-    from robust_drake.model_repair.battery import _sim_kwargs
+    from robust_drake.synthetic.battery import _sim_kwargs
 
     kw = _sim_kwargs("serial7")
     kw["excitation"] = dict(kw["excitation"], amplitude=[0.6] * 5 + [0.002, 0.002])

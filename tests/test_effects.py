@@ -17,7 +17,7 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import ConstantVectorSource, LogVectorOutput, Sine
 
 from robust_drake.errors import RobustDrakeError
-from robust_drake.model_repair.effects import (
+from robust_drake.effects import (
     EFFECTS, TorqueDelayLine, equivalent_gain_error, load_plant, make_effect,
 )
 
@@ -211,7 +211,7 @@ def test_generator_plant_obeys_the_effect_physics():
     """System level: simulate the true arm with a spring on joint 1 (exact encoder, no noise);
     the recorded torque minus Drake inverse dynamics minus the baseline friction equals the
     spring torque k q_2 the motor had to supply."""
-    from robust_drake.model_repair.simulated import simulate_experiment
+    from robust_drake.synthetic.simulated import simulate_experiment
 
     k = 0.4
     fc, fv = (0.02, 0.01), (0.004, 0.002)
@@ -257,7 +257,7 @@ def test_effect_blocks_in_the_closed_loop_builder():
     hanging arm against a 0.3 N m torque offset on joint 1 settles where its command equals the
     gravity torque at the reached posture plus the offset (static balance u + f_e = g(q))."""
     from robust_drake.diagram import ClosedLoopConfig, simulate
-    from robust_drake.model_repair.effects import closed_loop_hooks
+    from robust_drake.effects import closed_loop_hooks
 
     c = 0.3
     hooks = closed_loop_hooks([(make_effect("torque_offset", 1), {"offset": c})])

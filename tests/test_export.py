@@ -1,4 +1,4 @@
-"""Issue 23: ``IdentifiedModel.to_urdf`` / ``model_repair.export`` and ``repair --export-urdf``.
+"""Issue 23: ``IdentifiedModel.to_urdf`` / ``identification.export`` and ``repair --export-urdf``.
 
 Checked against Drake: the exported URDF is parsed by Drake's own parser and its
 MultibodyPlant inverse dynamics is compared with the model's regressor prediction; the round
@@ -14,7 +14,7 @@ import pytest
 
 from robust_drake import cli
 from robust_drake.errors import RobustDrakeError
-from robust_drake.model_repair.model import IdentifiedModel
+from robust_drake.identification.model import IdentifiedModel
 
 
 def _model_from_urdf(robot, viscous=(0.02, -0.01), coulomb=(0.1, 0.05), effects=()):
@@ -50,7 +50,7 @@ def _states(n=40, seed=0):
 def test_export_of_a_known_arm_is_that_arm_in_drake_and_round_trips(tmp_path):
     from pydrake.multibody.tree import MultibodyForces
 
-    from robust_drake.model_repair.model import IdentifiedEffect
+    from robust_drake.identification.model import IdentifiedEffect
     from robust_drake.models import make_plant
 
     cog = IdentifiedEffect("position_dependent", 1, {"harmonic": 4, "amplitude": 0.05, "phase": 0.3},
@@ -114,7 +114,7 @@ def test_identified_model_json_carries_the_consistent_fit_and_stays_backward_com
 
 @pytest.mark.slow
 def test_repair_export_urdf_on_the_command_line(tmp_path, capsys):
-    from robust_drake.model_repair.simulated import hidden_effect_case
+    from robust_drake.synthetic.simulated import hidden_effect_case
 
     fit, val, truth = hidden_effect_case("position_dependent", seed=0, out_dir=str(tmp_path / "data"), duration=8.0)
     urdf = tmp_path / "exp" / "c1_identified.urdf"

@@ -24,7 +24,7 @@ from robust_drake.identification.fitting import ColumnCache, predict_tau
 from robust_drake.identification.least_squares import (
     FILTER_COLUMNS, REGRESSOR_ROWS, load_regressor, parallel_filter, rigid_body_columns, solve_ls,
 )
-from robust_drake.model_repair.effects import make_effect
+from robust_drake.effects import make_effect
 from robust_drake.model_repair.selection import blocked_folds, cv_score, forward_select
 
 ROBOT = "dfki_double_pendulum_c1"
@@ -233,7 +233,7 @@ def test_repair_report_equals_the_naive_pipeline(reg, tmp_path, monkeypatch):
     from robust_drake.model_repair import nominal as NM
     from robust_drake.model_repair import stages
     from robust_drake.model_repair.pipeline import RepairOptions, run_repair
-    from robust_drake.model_repair.simulated import simulate_experiment
+    from robust_drake.synthetic.simulated import simulate_experiment
 
     paths = []
     for role, seed in (("fit", 0), ("val", 1)):

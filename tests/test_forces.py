@@ -31,7 +31,7 @@ def _expected():
 
 
 def _effects():
-    from robust_drake.model_repair.effects import make_effect
+    from robust_drake.effects import make_effect
 
     return [(make_effect("position_dependent", 1, harmonic=4), dict(COG))]
 
@@ -49,7 +49,7 @@ def _applied_minus_tau(diagram, plant, tau_port, t=0.0):
 
 def _closed_loop():
     from robust_drake.diagram import ClosedLoop, ClosedLoopConfig
-    from robust_drake.model_repair.effects import closed_loop_hooks
+    from robust_drake.effects import closed_loop_hooks
 
     loop = ClosedLoop(ClosedLoopConfig(
         robot=ROBOT, controller="pd", trajectory="sine", observer="exact", rate=500.0,
@@ -73,7 +73,7 @@ def _replay():
 
 
 def _simulated():
-    from robust_drake.model_repair.simulated import build_experiment
+    from robust_drake.synthetic.simulated import build_experiment
 
     exc = dict(amplitude=(1.0, 1.3), base_frequency=0.1, harmonics=5, bandwidth_hz=4.0,
                offset=None, torque_limit=12.0)

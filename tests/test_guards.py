@@ -23,8 +23,8 @@ import numpy as np
 import pytest
 
 from robust_drake.model_repair import stages as S
-from robust_drake.model_repair.effects import make_effect
-from robust_drake.model_repair.simulated import DEFAULT_ROBOT, simulate_experiment
+from robust_drake.effects import make_effect
+from robust_drake.synthetic.simulated import DEFAULT_ROBOT, simulate_experiment
 
 COULOMB = (0.02, 0.01)  # small Coulomb levels (simulated.hidden_effect_case: no sticking artefacts)
 

@@ -24,8 +24,8 @@ import math
 import numpy as np
 import pytest
 
-from robust_drake.model_repair.effects import DIAGNOSTIC_KINDS, EFFECTS, make_effect
-from robust_drake.model_repair.simulated import HIDDEN_CASES, hidden_effect_case
+from robust_drake.effects import DIAGNOSTIC_KINDS, EFFECTS, make_effect
+from robust_drake.synthetic.simulated import HIDDEN_CASES, hidden_effect_case
 
 repair = pytest.importorskip("robust_drake.model_repair.pipeline")
 
@@ -156,7 +156,7 @@ def test_undeclared_sensor_vibration_is_caught_by_the_estimator_test(tmp_path_fa
     switch is then held to the per-joint torque rule and kept: its validation torque is not worse
     beyond the paired test's spread (see below)."""
     from robust_drake.identification.least_squares import load_regressor
-    from robust_drake.model_repair.simulated import hidden_effect_case
+    from robust_drake.synthetic.simulated import hidden_effect_case
 
     out = tmp_path_factory.mktemp("hidden_vibration")
     fit, val, truth = hidden_effect_case("sensor_vibration", seed=0, out_dir=str(out), vibration_rms=1e-3)

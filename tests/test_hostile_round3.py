@@ -51,7 +51,7 @@ def _env():
 def sim(tmp_path_factory):
     """Fit (seed 0) and validation (seed 1) CSVs of the simulated C.1, 12 s at 250 Hz, and a
     validation log of another arm (the Siciliano 2-link, same columns)."""
-    from robust_drake.model_repair.simulated import simulate_experiment
+    from robust_drake.synthetic.simulated import simulate_experiment
 
     d = tmp_path_factory.mktemp("sim")
     paths = {k: str(d / f"{k}.csv") for k in ("fit", "val", "other")}
@@ -348,7 +348,7 @@ def test_api_wrong_types_are_refused_before_anything_runs(sim, kwargs, text, tmp
     (lambda d: d.pop("joint_names"), "joint_names is missing"),
 ])
 def test_identified_model_json_is_checked(mutate, text):
-    from robust_drake.model_repair.model import IdentifiedModel
+    from robust_drake.identification.model import IdentifiedModel
 
     good = IdentifiedModel(robot=ROBOT, joint_names=["joint1", "joint2"], base_names=["a", "b", "c"],
                            base_values=np.array([1.0, 2.0, 3.0]), base_covariance=None,
@@ -363,7 +363,7 @@ def test_identified_model_json_is_checked(mutate, text):
 
 def test_identified_model_of_another_robot_is_refused_when_used():
     from robust_drake.identification.least_squares import load_regressor
-    from robust_drake.model_repair.model import IdentifiedModel
+    from robust_drake.identification.model import IdentifiedModel
 
     reg = load_regressor("siciliano_2link")
     m = IdentifiedModel(robot=ROBOT, joint_names=["joint1", "joint2"], base_names=list(reg.base_names),

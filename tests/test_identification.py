@@ -9,7 +9,7 @@ from fourier_motion import fourier_motion
 from robust_drake.model_repair import residual as R
 from robust_drake.identification.consistency import consistent_identification, pseudo_inertia
 from robust_drake.identification.data import DataWarning, FilterSettings, IdentData
-from robust_drake.model_repair.effects import make_effect
+from robust_drake.effects import make_effect
 from robust_drake.identification.least_squares import (
     COND_WARN, friction_columns, load_regressor, solve_ls, solve_wls,
 )
@@ -185,7 +185,7 @@ def test_replay_through_drake_plant_matches_simulated_motion():
     from robust_drake.model_repair.replay import replay
     import tempfile, os
 
-    from robust_drake.model_repair.simulated import simulate_experiment
+    from robust_drake.synthetic.simulated import simulate_experiment
 
     with tempfile.TemporaryDirectory() as tmp:
         path = os.path.join(tmp, "x.csv")

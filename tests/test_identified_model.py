@@ -12,13 +12,13 @@ import numpy as np
 import pytest
 
 from robust_drake.errors import RobustDrakeError
-from robust_drake.model_repair.model import IdentifiedModel
+from robust_drake.identification.model import IdentifiedModel
 
 
 @pytest.fixture(scope="module")
 def case(tmp_path_factory):
     from robust_drake.model_repair.pipeline import RepairOptions, run_repair
-    from robust_drake.model_repair.simulated import hidden_effect_case
+    from robust_drake.synthetic.simulated import hidden_effect_case
 
     out = tmp_path_factory.mktemp("model")
     fit, val, truth = hidden_effect_case("position_dependent", seed=0, out_dir=str(out), duration=10.0)
@@ -65,7 +65,7 @@ def test_model_predicts_the_validation_torque(case):
 def test_feedforward_cancels_the_true_cogging(case):
     """Feedforward minus the friction part = the torque the motors must add against the arm's
     real cogging, i.e. minus the true block's generalized force (amplitude 0.06 N m)."""
-    from robust_drake.model_repair.effects import make_effect
+    from robust_drake.effects import make_effect
 
     rep, truth, _ = case
     model = IdentifiedModel.from_report(rep)
@@ -105,7 +105,7 @@ def test_effect_blocks_apply_the_model_force(case):
     from pydrake.systems.framework import DiagramBuilder
     from pydrake.systems.primitives import ConstantVectorSource
 
-    from robust_drake.model_repair.effects import load_plant
+    from robust_drake.effects import load_plant
 
     rep, truth, _ = case
     model = IdentifiedModel.from_report(rep)

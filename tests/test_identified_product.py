@@ -21,8 +21,8 @@ import pytest
 import robust_drake as rd
 from robust_drake.diagram import ClosedLoopConfig, build_closed_loop
 from robust_drake.errors import RobustDrakeError
-from robust_drake.model_repair.effects import EFFECTS, make_effect
-from robust_drake.model_repair.model import IdentifiedEffect, IdentifiedModel
+from robust_drake.effects import EFFECTS, make_effect
+from robust_drake.identification.model import IdentifiedEffect, IdentifiedModel
 
 C1 = "dfki_double_pendulum_c1"
 
@@ -31,7 +31,7 @@ C1 = "dfki_double_pendulum_c1"
 def periodic(tmp_path_factory):
     """A.0 arm with a 3.1 Hz torque disturbance on joint 1 (outside the library: the repair adds
     a periodic_disturbance, a time-dependent effect), 8 s logs; repaired without replay."""
-    from robust_drake.model_repair.simulated_cases import outside_case
+    from robust_drake.synthetic.simulated_cases import outside_case
 
     out = tmp_path_factory.mktemp("periodic")
     fit, val, truth = outside_case("periodic_fast", out_dir=str(out), duration=8.0)

@@ -8,7 +8,7 @@ import pytest
 from robust_drake.errors import RobustDrakeError
 from robust_drake.identification.data import FilterSettings, IdentData, zero_phase_lowpass
 from robust_drake.identification.instruments import noise_gain, solve_iv
-from robust_drake.model_repair.model import IdentifiedModel
+from robust_drake.identification.model import IdentifiedModel
 from robust_drake.uncertainty.confidence import confidence_ellipsoid, mahalanobis_radius
 
 DT, FC, N, DRAWS = 0.004, 8.0, 1500, 300

@@ -201,7 +201,7 @@ def test_identification_excitation_outside_the_limits_is_refused():
     sign-limited joints: refused before simulating, naming the excitation's parameters (the
     logs-to-control excitation swings about the middle of each range instead)."""
     from robust_drake.experiments.logs_to_control import excitation_for
-    from robust_drake.model_repair.simulated import simulate_experiment
+    from robust_drake.synthetic.simulated import simulate_experiment
 
     with pytest.raises(RobustDrakeError, match=r"excitation.*joint [35] \(joint[46]\).*'offset'"):
         simulate_experiment("panda", duration=2.0, excitation=dict(amplitude=1.0, torque_limit=None),

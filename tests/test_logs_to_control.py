@@ -7,7 +7,7 @@ import pytest
 from robust_drake.errors import RobustDrakeError
 from robust_drake.experiments.logs_to_control import LogsToControlConfig, run_logs_to_control
 from robust_drake.identification.least_squares import solve_ls
-from robust_drake.model_repair.model import IdentifiedModel
+from robust_drake.identification.model import IdentifiedModel
 from robust_drake.uncertainty.confidence import confidence_ellipsoid, mahalanobis_radius
 
 

@@ -12,7 +12,7 @@ with the tolerance as non-inferiority margin).
 import numpy as np
 import pytest
 
-from robust_drake.model_repair.simulated import DEFAULT_ROBOT, PeriodicDisturbance, simulate_experiment
+from robust_drake.synthetic.simulated import DEFAULT_ROBOT, PeriodicDisturbance, simulate_experiment
 
 CASES = {"3Hz_joint1": ((0.0, 0.1), 3.0), "0.4Hz_both": ((0.06, 0.06), 0.4)}
 

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from robust_drake.model_repair import nominal as NM
-from robust_drake.model_repair.effects import equivalent_gain_error, make_effect
+from robust_drake.effects import equivalent_gain_error, make_effect
 from robust_drake.identification.least_squares import load_regressor
 
 ROBOT = "dfki_double_pendulum_c1"

@@ -24,8 +24,8 @@ import numpy as np
 import pytest
 
 from robust_drake.model_repair import diagnostics as D
-from robust_drake.model_repair.effects import DIAGNOSTIC_KINDS, all_candidates, make_effect
-from robust_drake.model_repair.simulated_cases import outside_case
+from robust_drake.effects import DIAGNOSTIC_KINDS, all_candidates, make_effect
+from robust_drake.synthetic.simulated_cases import outside_case
 
 repair = pytest.importorskip("robust_drake.model_repair.pipeline")
 
@@ -316,7 +316,7 @@ def test_selection_given_the_diagnostic_candidates_names_the_outside_effect(case
 
 
 def test_admissibility_of_the_new_kinds():
-    from robust_drake.model_repair.effects import admissible
+    from robust_drake.effects import admissible
 
     dz = make_effect("dead_zone", 1, threshold=0.1)
     assert admissible(dz, {"share": 0.95}) == ""

@@ -102,7 +102,7 @@ def test_ros_urdf_simulates_in_the_closed_loop(tmp_path):
 
 def test_ros_urdf_repairs(tmp_path):
     from robust_drake.model_repair import pipeline as repair
-    from robust_drake.model_repair.simulated import simulate_experiment
+    from robust_drake.synthetic.simulated import simulate_experiment
 
     path = _urdf(tmp_path)
     fit, val = str(tmp_path / "fit.csv"), str(tmp_path / "val.csv")

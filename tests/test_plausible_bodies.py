@@ -198,7 +198,7 @@ def test_regularised_masses_beat_the_nearest_feasible_point_on_poor_data_and_fol
 
 # ---------------------------------------------------------------------------------------- (c)
 def test_rotor_inertia_goes_into_the_rotor_candidate_not_the_link(tmp_path):
-    from robust_drake.model_repair.simulated import strip_rotor_inertia
+    from robust_drake.synthetic.simulated import strip_rotor_inertia
 
     bare = strip_rotor_inertia("puma560_3link", str(tmp_path / "puma_no_rotor.urdf"))
     reg = InverseDynamicsRegressor.from_robot(bare)
@@ -274,7 +274,7 @@ def test_warning_names_the_link_when_a_mass_is_off_by_more_than_3x():
 def rotor_case(tmp_path_factory):
     """DFKI C.1 arm with a reflected rotor inertia of 0.01 kg m^2 on joint 1 only; the model URDF
     has no rotor inertia at all (``hidden_effect_case``: its drake:rotor_inertia tags removed)."""
-    from robust_drake.model_repair.simulated import hidden_effect_case
+    from robust_drake.synthetic.simulated import hidden_effect_case
 
     return hidden_effect_case("rotor_inertia", seed=0, out_dir=str(tmp_path_factory.mktemp("rotor")), duration=8.0)
 

@@ -39,7 +39,7 @@ def _progress(stderr, what):
 
 @pytest.fixture(scope="module")
 def sim_csvs(tmp_path_factory):
-    from robust_drake.model_repair.simulated import simulate_experiment
+    from robust_drake.synthetic.simulated import simulate_experiment
 
     d = tmp_path_factory.mktemp("progress")
     fit, val = d / "fit.csv", d / "val.csv"

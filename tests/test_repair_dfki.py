@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from robust_drake import cli
-from robust_drake.model_repair.effects import EFFECTS
+from robust_drake.effects import EFFECTS
 
 DFKI = os.path.join(os.environ.get("ROBUST_DRAKE_DATA")
                     or os.path.join(os.path.dirname(__file__), "..", "..", "shared", "data"), "dfki_double_pendulum")
@@ -81,7 +81,7 @@ def test_c1_export_urdf_is_the_consistent_model_in_drake(c1_report, tmp_path):
     from pydrake.multibody.tree import MultibodyForces
 
     from robust_drake.identification.data import load
-    from robust_drake.model_repair.model import IdentifiedModel
+    from robust_drake.identification.model import IdentifiedModel
     from robust_drake.models import make_plant
     from robust_drake.regressor import InverseDynamicsRegressor
 
@@ -232,7 +232,7 @@ def test_c1_joint0_friction_lags_at_reversals_presliding_friction(x0):
     planetary QDD joint has (< 0.5 N m). Joint 1 is not improved by it (nor by any library
     effect, see BUILD_NOTES "Identification and repair")."""
     from robust_drake.identification.data import load
-    from robust_drake.model_repair.effects import make_effect
+    from robust_drake.effects import make_effect
     from robust_drake.identification.least_squares import load_regressor, solve_wls
     from robust_drake.model_repair.selection import ColumnCache, fit_model, predict_tau
 

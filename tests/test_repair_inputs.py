@@ -36,7 +36,7 @@ DFKI = _shared_dfki()
 @pytest.fixture(scope="module")
 def sim(tmp_path_factory):
     """Fit (seed 0) and validation (seed 1) CSVs of the simulated arm, 12 s at 250 Hz."""
-    from robust_drake.model_repair.simulated import simulate_experiment
+    from robust_drake.synthetic.simulated import simulate_experiment
 
     d = tmp_path_factory.mktemp("sim")
     fit, val = str(d / "fit.csv"), str(d / "val.csv")
@@ -167,7 +167,7 @@ def test_torques_x1000_warn_on_console_in_json_and_markdown(sim, tmp_path, capsy
 def test_positions_in_degrees_below_the_range_check_warn(tmp_path, capsys):
     """A small-motion experiment (|q| < 9 deg, so under the 4 pi range check) logged in degrees:
     the URDF's inverse dynamics no longer matches the torque (scale ~1e-3 instead of ~1)."""
-    from robust_drake.model_repair.simulated import simulate_experiment
+    from robust_drake.synthetic.simulated import simulate_experiment
 
     paths = []
     for seed in (0, 1):

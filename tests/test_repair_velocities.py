@@ -20,7 +20,7 @@ QUICK = ["--no-replay", "--no-consistent", "--no-instruments", "--no-nominal", "
 
 @pytest.fixture(scope="module")
 def sim(tmp_path_factory):
-    from robust_drake.model_repair.simulated import simulate_experiment
+    from robust_drake.synthetic.simulated import simulate_experiment
 
     d = tmp_path_factory.mktemp("vel")
     paths = {k: str(d / f"{k}.csv") for k in ("fit", "val", "val_noqd")}

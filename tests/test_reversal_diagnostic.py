@@ -1,7 +1,7 @@
 """The residual diagnostic for structure at torque reversals (backlash, issue 13).
 
 ``diagnostics.reversal`` looks for residual energy concentrated just after the sign changes of a
-joint's torque: backlash (``model_repair.backlash``) leaves the link without drive torque while
+joint's torque: backlash (``synthetic.backlash``) leaves the link without drive torque while
 the gap is crossed and then rings on the teeth. Synthetic residuals (30 s at 250 Hz, noise
 low-passed at the data's 8 Hz cut-off like the parallel-filtered residual) check that it fires
 on reversal-locked bursts of random phase on the right joint, stays silent on white noise and on
@@ -88,7 +88,7 @@ def test_silent_on_a_coulomb_mismatch_at_velocity_reversals():
 @pytest.fixture(scope="module")
 def siciliano_backlash(tmp_path_factory):
     from robust_drake.model_repair.pipeline import RepairOptions, run_repair
-    from robust_drake.model_repair.simulated_cases import backlash_case
+    from robust_drake.synthetic.simulated_cases import backlash_case
 
     out = tmp_path_factory.mktemp("backlash")
     fit, val, truth = backlash_case("siciliano_2link", out_dir=str(out / "logs"), duration=8.0, joint=1)

@@ -23,7 +23,7 @@ from robust_drake.identification.fitting import ColumnCache
 from robust_drake.identification.least_squares import RANK_TOL, load_regressor, solve_gram
 from robust_drake.model_repair import selection as SEL
 from robust_drake.model_repair.decisions import LEVEL
-from robust_drake.model_repair.effects import PhysicalContext, all_candidates, make_effect
+from robust_drake.effects import PhysicalContext, all_candidates, make_effect
 
 C1 = "dfki_double_pendulum_c1"
 
@@ -137,7 +137,7 @@ def test_no_effect_simulated_arm_accepts_nothing_beyond_the_level(tmp_path):
     no-effect Coulomb levels of ``simulated.hidden_effect_case`` (0.02 / 0.01 N m): with the
     function's default 0.08 / 0.05 N m the joints stick at reversals, real low-velocity structure
     a sign(qd) column cannot fit (measured there, and here: 5 of 20 seeds accept a friction shape)."""
-    from robust_drake.model_repair.simulated import simulate_experiment
+    from robust_drake.synthetic.simulated import simulate_experiment
 
     seeds = 20
     hits = []

@@ -15,7 +15,7 @@ from scipy import signal
 
 from given_columns import GivenColumns
 from robust_drake.model_repair import selection as SEL
-from robust_drake.model_repair.effects import EFFECTS, PhysicalContext, delay_bound, make_effect
+from robust_drake.effects import EFFECTS, PhysicalContext, delay_bound, make_effect
 
 
 def _data(lengths, dt=0.01, cutoff=8.0, order=4):
@@ -215,7 +215,7 @@ def test_every_library_kind_has_a_rule():
 
 # ------------------------------------------------------------------------------ delay and rationale
 def test_time_delay_only_with_a_declared_physical_source():
-    from robust_drake.model_repair.effects import all_candidates
+    from robust_drake.effects import all_candidates
     from robust_drake.model_repair.pipeline import plausibility
 
     assert delay_bound("d2r2")[0] is None  # direct drive, analog amplifiers: no bus

@@ -17,7 +17,7 @@ from robust_drake.model_repair.decisions import LEVEL, block_ids, block_length, 
 from robust_drake.model_repair.diagnostics import setup_change_of
 from robust_drake.model_repair.nominal import compare_with_nominal
 from robust_drake.model_repair.pipeline import RepairOptions, run_repair
-from robust_drake.model_repair.simulated import DEFAULT_ROBOT, simulate_experiment
+from robust_drake.synthetic.simulated import DEFAULT_ROBOT, simulate_experiment
 
 COULOMB = (0.02, 0.01)  # small: no sticking at reversals (simulated.hidden_effect_case)
 
@@ -129,7 +129,7 @@ def test_exact_urdf_with_unidentifiable_directions_is_not_significant(tmp_path):
     """serial7 whose last two joints move 2 mrad: six directions are unidentifiable. Over all 48
     base parameters the exact URDF read chi^2 163-262 against the 99 % limit 73.7 (measured on
     seeds 0-2 before issue 21); over the identifiable directions it must stay below the limit."""
-    from robust_drake.model_repair.battery import _sim_kwargs
+    from robust_drake.synthetic.battery import _sim_kwargs
 
     kw = _sim_kwargs("serial7")
     kw["excitation"] = dict(kw["excitation"], amplitude=[0.6] * 5 + [0.002, 0.002])

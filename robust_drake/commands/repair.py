@@ -177,7 +177,7 @@ def _check_export(args) -> None:
 def _export(args, rep) -> None:
     """--export-urdf: the repaired model's URDF + sidecar (``IdentifiedModel.to_urdf``), into rep["export"]."""
     if args.export_urdf is not None:
-        from robust_drake.model_repair.model import IdentifiedModel
+        from robust_drake.identification.model import IdentifiedModel
 
         rep["export"] = IdentifiedModel.from_report(rep).to_urdf(args.export_urdf)
 

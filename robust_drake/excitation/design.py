@@ -106,7 +106,7 @@ class ExcitationConfig:
         Shares of the velocity and torque limits the motion may use (0.9, 0.8: headroom for the
         tracking loop).
     effects : tuple of str
-        Effect kinds (``model_repair.effects``) added to the information (``--for-effects``).
+        Effect kinds (``robust_drake.effects``) added to the information (``--for-effects``).
     min_distance : float
         Smallest signed distance [m] between collision geometries at the knots.
     collision : bool
@@ -539,7 +539,7 @@ def default_reference(robot, seed: int = 0):
     Fourier sum, 0.1 Hz, 5 harmonics, peak 1 rad about the middle of the limits), as
     ``simulate_experiment`` draws it with this seed."""
     from robust_drake.experiments.logs_to_control import excitation_for
-    from robust_drake.model_repair.simulated import FourierReference
+    from robust_drake.synthetic.simulated import FourierReference
     from robust_drake.models import make_plant
 
     exc = excitation_for(robot)

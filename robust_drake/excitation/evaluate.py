@@ -2,7 +2,7 @@
 
 :func:`compare_identification`: the true arm (its URDF, the description's friction or the
 generator's defaults, torque noise 2 % of the largest gravity torque: the repo's simulated
-experiments, ``experiments.logs_to_control``) runs ``model_repair.simulated.simulate_experiment``
+experiments, ``experiments.logs_to_control``) runs ``synthetic.simulated.simulate_experiment``
 twice with the same duration, seed, 250 Hz log, noise and 8 Hz filter: tracking the designed
 motion and tracking the default excitation (``logs_to_control.excitation_for``).  Both logs are
 identified by the same repair (rigid body + friction, LS or IV by the Hausman rule, as
@@ -21,7 +21,7 @@ import numpy as np
 
 
 def identify_csv(robot, path):
-    from robust_drake.model_repair.model import IdentifiedModel
+    from robust_drake.identification.model import IdentifiedModel
     from robust_drake.model_repair.pipeline import RepairOptions, run_repair
 
     opts = RepairOptions(robot=robot, max_effects=0, kinds=[], replay=False, plots=False, instruments=True,
@@ -37,7 +37,7 @@ def compare_identification(robot, duration, harmonics=None, seed=0, out_dir=None
     ``design``: an :class:`ExcitationResult` to use (default: designed here)."""
     from robust_drake.excitation.design import ExcitationConfig, design_excitation
     from robust_drake.experiments.logs_to_control import excitation_for, torque_noise_std, true_friction
-    from robust_drake.model_repair.simulated import simulate_experiment
+    from robust_drake.synthetic.simulated import simulate_experiment
     from robust_drake.regressor import InverseDynamicsRegressor
 
     out_dir = out_dir or tempfile.mkdtemp(prefix=f"excite_{robot}_")

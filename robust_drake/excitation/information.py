@@ -5,7 +5,7 @@ The repair identifies (``identification/fitting.py``)::
     tau = A(q, qd, qdd) x,   A = [ Y_b(q, qd, qdd) | sgn(qd_j) | qd_j | Phi_e(q, qd, qdd, tau) ]
 
 (base-parameter regressor of ``regressor.InverseDynamicsRegressor``, Coulomb and viscous
-friction per joint, the columns of optional effects from ``model_repair/effects.py``).  With white
+friction per joint, the columns of optional effects from ``effects/``).  With white
 torque noise of standard deviation sigma [N m] on every sample, the Fisher information of x in a
 log of samples k is ``F = sum_k A_k^T A_k / sigma^2`` and its inverse the Cramer-Rao covariance
 of the (least-squares) estimate (Swevers et al. 1997 eq. 9 form; Gautier & Khalil 1992 use the
@@ -172,7 +172,7 @@ def dependent_columns(A: np.ndarray, first: int, tol: float = 1e-8) -> list[int]
 def check_effect_kinds(kinds, n: int, robot=None) -> list:
     """Effect instances (all joints, default shape) for ``--for-effects``; a one-line error for a
     kind whose columns are not a function of the state and torque alone (time, torque rate)."""
-    from robust_drake.model_repair.effects import EFFECTS, TimeEffect, make_effect
+    from robust_drake.effects import EFFECTS, TimeEffect, make_effect
 
     out = []
     for kind in kinds:

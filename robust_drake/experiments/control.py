@@ -3,7 +3,7 @@
 The path of ``robust-drake control REPORT.json`` (and ``rd.control``), the same for a user's arm
 and for the simulated demo of ``logs-to-control``:
 
-1. the model (:class:`~robust_drake.model_repair.model.IdentifiedModel`: a repair's report, a
+1. the model (:class:`~robust_drake.identification.model.IdentifiedModel`: a repair's report, a
    model file, ``rd.identify``'s result) and its 1 - alpha confidence set E(P, theta0) (CI eq. 10,
    :meth:`IdentifiedModel.confidence_set`);
 2. the controller designed from them: CI eq. 15 (``"ci"``: the ellipsoid itself, the sampled-loop
@@ -278,7 +278,7 @@ def run_control(model, cfg: ControlConfig | None = None, progress=None, desc: st
     from robust_drake.experiments.ultimate_bound import bound_region
     from robust_drake.log import progress_bar, progress_callback
     from robust_drake.loop_defaults import robot_rate
-    from robust_drake.model_repair.model import as_identified_model
+    from robust_drake.identification.model import as_identified_model
     from robust_drake.models import make_plant
     from robust_drake.regressor import InverseDynamicsRegressor
 

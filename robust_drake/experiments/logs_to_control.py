@@ -5,14 +5,14 @@ DFKI C.1, the Siciliano arm, the PUMA 560's first three joints and serial7).
 
 1. The "true" arm (its URDF; Coulomb + viscous friction from its description's
    ``simulation.plant_friction``, else small defaults: :func:`true_friction`) runs a PD-tracked
-   Fourier excitation (``model_repair.simulated.simulate_experiment``; peak 1 rad about the middle
+   Fourier excitation (``synthetic.simulated.simulate_experiment``; peak 1 rad about the middle
    of each joint's limits, clipped at the description's ``torque_limits``: :func:`excitation_for`)
    for a short time (default 5 s at 250 Hz, 843 rows after the filter's edges) with torque noise
    of ``noise_fraction`` (2 %) of the arm's largest gravity torque (:func:`torque_noise_std`), so
    that the identified set is of a size worth a robust design (C.1: draws up to 22 % off the truth
    in Izz, Siciliano: 9 %).
 2. ``run_repair`` (no effects; LS, or IV where its Hausman test flags errors in variables)
-   identifies the base parameters: an :class:`~robust_drake.model_repair.model.IdentifiedModel`
+   identifies the base parameters: an :class:`~robust_drake.identification.model.IdentifiedModel`
    with covariance.
 3. :func:`robust_drake.uncertainty.confidence.confidence_ellipsoid` turns it into the 1 - alpha
    ellipsoid E(P, theta0) (CI eq. 10); the URDF's base parameters (the truth) must lie inside,
@@ -168,7 +168,7 @@ def true_friction(robot, n: int):
 def simulate_log(cfg: LogsToControlConfig, out_dir: str) -> str:
     """The simulated identification experiment of the arm (module docstring, step 1) written to
     ``out_dir/fit.csv``; returns its path."""
-    from robust_drake.model_repair.simulated import simulate_experiment
+    from robust_drake.synthetic.simulated import simulate_experiment
 
     path = os.path.join(out_dir, "fit.csv")
     exc = excitation_for(cfg.robot)
@@ -185,7 +185,7 @@ def identify(cfg: LogsToControlConfig, out_dir: str):
     errors in variables, else least squares; ``uncertainty.confidence`` then uses the matching
     covariance). The log is the one a user would bring: the demo and a real arm follow one path
     (simulate-experiment -> identify -> control)."""
-    from robust_drake.model_repair.identify import identify as identify_logs
+    from robust_drake.identification.identify import identify as identify_logs
 
     return identify_logs([simulate_log(cfg, out_dir)], cfg.robot, progress=lambda *_: None)
 
@@ -328,7 +328,7 @@ def compare_with_sdp(n_samples: int = 20, alpha: float = 0.01, seed: int = 0, bo
 
     from robust_drake.experiments.calafiore import simulate_identification
     from robust_drake.identification.least_squares import solve_wls
-    from robust_drake.model_repair.model import IdentifiedModel
+    from robust_drake.identification.model import IdentifiedModel
     from robust_drake.regressor import imi_scara_regressor
     from robust_drake.uncertainty.confidence import confidence_ellipsoid, mahalanobis_radius
     from robust_drake.uncertainty.ellipsoid import solve_ellipsoid

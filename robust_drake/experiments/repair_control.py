@@ -57,17 +57,17 @@ def truth() -> dict:
 
 def model_feedforward(report: dict, stage: str = "final"):
     """``f(q, v) -> torques`` [N m] of the identified model ``stage`` ("baseline" or "final"):
-    :meth:`~robust_drake.model_repair.model.IdentifiedModel.feedforward` of the model the
+    :meth:`~robust_drake.identification.model.IdentifiedModel.feedforward` of the model the
     repair report carries (friction ``fc_j sgn(v_j) + fv_j v_j`` plus, for the final model, the
     effects a controller can compute from (q, v); the others are listed in ``skipped``)."""
-    from robust_drake.model_repair.model import IdentifiedModel
+    from robust_drake.identification.model import IdentifiedModel
 
     return IdentifiedModel.from_report(report, stage).feedforward()
 
 
 def true_arm_effects():
     """Plant-side blocks of the hidden effect, for :class:`~robust_drake.diagram.ClosedLoopConfig`."""
-    from robust_drake.model_repair.effects import make_effect
+    from robust_drake.effects import make_effect
 
     kind, joint, p = TRUE_EFFECT
     eff = make_effect(kind, joint, harmonic=p["harmonic"])
@@ -77,7 +77,7 @@ def true_arm_effects():
 
 def generate_experiment(out_dir, duration=12.0, seeds=(0, 1)):
     """Write fit.csv and validate.csv of the true D2R2 (hidden cogging) into ``out_dir``."""
-    from robust_drake.model_repair.simulated import simulate_experiment
+    from robust_drake.synthetic.simulated import simulate_experiment
     from robust_drake.systems.sensors import D2R2_THETA_M
 
     os.makedirs(out_dir, exist_ok=True)

@@ -346,7 +346,7 @@ def regularised_fit(R_full, K, J0s, n_links: int, n_extra: int, *, budget: float
 @dataclass(frozen=True)
 class RotorCandidate:
     """A reflected rotor inertia offered to the consistent fit on a geared joint the regressor has
-    no ``Ia_<joint>`` for: column qdd_j (``model_repair.effects.RotorInertia``), 0 <= Ia <= ``upper``."""
+    no ``Ia_<joint>`` for: column qdd_j (``robust_drake.effects.RotorInertia``), 0 <= Ia <= ``upper``."""
 
     joint: int  # velocity index
     name: str  # joint name
@@ -526,7 +526,7 @@ class ConsistentResult:
     def as_dict(self):
         # the rotor candidates are listed under "rotor_candidates", not "extras": the identified
         # model's base values (theta_base = K pi) do not hold them, and the export writes "extras"
-        # into the URDF (model_repair.export), which must stay the model's own arm
+        # into the URDF (identification.export), which must stay the model's own arm
         cand = {f"Ia_{r.name}" for r in self.rotor}
         d = {"bodies": _bodies(self.body_names, self.pi),
              "min_pseudo_inertia_eig": [float(x) for x in self.min_eig], "solver": self.solver,

@@ -7,7 +7,7 @@ The model is linear in its parameters (Gautier & Khalil; JS eq. 15 for the close
 ``Y_rb`` are the identifiable base-parameter columns of the URDF given with ``--robot``
 (``robust_drake.regressor.InverseDynamicsRegressor``), ``Y_fric`` one Coulomb (sign qd_i) and one
 viscous (qd_i) column per joint (the baseline), effect columns come from
-``robust_drake.model_repair.effects``.
+``robust_drake.effects``.
 
 Convention ("parallel filtering"): every column is passed through the same zero-phase filter as
 the measured torque (``data.zero_phase_lowpass``), per file segment, so a discontinuous column

@@ -350,7 +350,7 @@ def resolve_torque_scale(theta_rigid: np.ndarray, se_rigid: np.ndarray, theta0: 
     if n != 2:
         return {"joint": joint, "gain_error": gain_error, "swapped": False,
                 "chi2_as_fitted": c_fit, "chi2_swapped": None}
-    from robust_drake.model_repair.effects import equivalent_gain_error
+    from robust_drake.effects import equivalent_gain_error
 
     alt = np.asarray(theta_rigid) / (1.0 + gain_error)
     c_alt = chi2(alt - theta0, W)

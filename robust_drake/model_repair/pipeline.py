@@ -20,7 +20,7 @@ never-worse outcome (``"verdict": "repaired" | "no_improvement"``, ``"verdict_re
 validation run against the fit run's own held-out error, ``diagnostics.setup_change_of``: when flagged the
 verdict is ``no_improvement`` and no effect is claimed), ``"joint_names"`` (URDF,
 joints numbered from 0 everywhere) and the identified models ``"model"`` / ``"baseline_model"``
-(:class:`~robust_drake.model_repair.model.IdentifiedModel.to_json`), which are what control
+(:class:`~robust_drake.identification.model.IdentifiedModel.to_json`), which are what control
 takes. The stages are in ``stages.py``; rendering (report.md from the same dict) in ``report.py``.
 Validation: the ``validate`` files; without them the last ``HOLDOUT_FRACTION`` of every fit file
 (a contiguous tail) is held out, and the report says so.
@@ -39,7 +39,7 @@ from robust_drake.errors import RobustDrakeError, option_name
 from robust_drake.model_repair import diagnostics as DG
 from robust_drake.model_repair import report as RP
 from robust_drake.identification.data import DEFAULT_CUTOFF_HZ, DataWarning
-from robust_drake.model_repair.model import IdentifiedModel
+from robust_drake.identification.model import IdentifiedModel
 from robust_drake.model_repair.report import json_default as _json_default
 from robust_drake.model_repair.report import render_markdown  # noqa: F401  (re-exported)
 from robust_drake.model_repair.decisions import LEVEL
@@ -87,7 +87,7 @@ class RepairOptions:
         option; the command line reports it under its flag, :data:`CLI_FLAGS`). ``kinds`` may be a
         comma-separated string (as ``--effects``); an empty one is refused (None = the library)."""
         from robust_drake.errors import OptionError
-        from robust_drake.model_repair.effects import EFFECTS
+        from robust_drake.effects import EFFECTS
 
         if not isinstance(self.robot, (str, os.PathLike)) or not str(os.fspath(self.robot)).strip():
             raise OptionError("robot", f"must be a robot name or a URDF path, got {self.robot!r}")
@@ -233,7 +233,7 @@ def plausibility(kind: str, params: dict, robot: str) -> str:
                 + ("" if abs(g) < 0.3 else "; NOTE: larger than a motor constant usually errs"))
     if kind == "time_delay":
         d = p.get("delay", np.nan)
-        from robust_drake.model_repair.effects import delay_bound
+        from robust_drake.effects import delay_bound
 
         bound, source = delay_bound(robot)
         return f"delay {d * 1e3:.3g} ms between recorded torque and motion ({source})" + (
@@ -636,7 +636,7 @@ def run_repair_demo(out_dir: str, kind: str = "stribeck", seed: int = 0, progres
     baseline, finds the missing effect, and writes the report there. Returns the report with an
     extra ``"truth"`` entry (what was hidden) so a caller can compare.
     """
-    from robust_drake.model_repair.simulated import hidden_effect_case
+    from robust_drake.synthetic.simulated import hidden_effect_case
 
     os.makedirs(out_dir, exist_ok=True)
     from robust_drake.log import progress_callback
@@ -670,7 +670,7 @@ def attach_truth(rep: dict, truth: dict, out_dir: str | None) -> dict:
 
 def effects_from_report(report: dict) -> list:
     """The chosen effects of a repair report as ``[(Effect, parameters), ...]`` (via
-    :class:`~robust_drake.model_repair.model.IdentifiedModel`)."""
+    :class:`~robust_drake.identification.model.IdentifiedModel`)."""
     return IdentifiedModel.from_report(report).effect_terms()
 
 

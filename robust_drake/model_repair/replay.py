@@ -39,7 +39,7 @@ def build_replay_diagram(robot, data: IdentData, coulomb, viscous, effects=(), i
     from pydrake.systems.primitives import TrajectorySource
     from pydrake.trajectories import PiecewisePolynomial
 
-    from robust_drake.model_repair.effects import effect_force_blocks, load_plant
+    from robust_drake.effects import effect_force_blocks, load_plant
     from robust_drake.systems.forces import add_force_blocks, sum_into_plant
     from robust_drake.systems.friction import CoulombViscousFriction
 
@@ -65,7 +65,7 @@ def build_replay_diagram(robot, data: IdentData, coulomb, viscous, effects=(), i
 
 def _prefill_delay_lines(diagram, ctx, seg: IdentData, k: int) -> None:
     """Fill every torque delay line with the measured torque history before sample k."""
-    from robust_drake.model_repair.effects import TorqueDelayLine
+    from robust_drake.effects import TorqueDelayLine
 
     for sys in diagram.GetSystems():
         if isinstance(sys, TorqueDelayLine):
@@ -83,7 +83,7 @@ def _prefill_presliding(diagram, ctx, seg: IdentData, k: int) -> None:
     sample k imply (``effects.presliding_state`` along seg.q[:k+1]), as the delay lines get their
     torque history: left at 0 (or at the previous window's end) a 40 N m Dahl term starts each
     window with the wrong friction."""
-    from robust_drake.model_repair.effects import PreslidingFrictionBlock, presliding_state
+    from robust_drake.effects import PreslidingFrictionBlock, presliding_state
 
     for sys in diagram.GetSystems():
         if isinstance(sys, PreslidingFrictionBlock):

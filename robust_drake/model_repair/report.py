@@ -199,7 +199,7 @@ def grid_edge(kind: str, parameters: dict) -> list[str]:
     its kind's candidate grid (``effects.EFFECTS[kind].shape_grid``, grids of two or more values):
     the data may want a value beyond the grid, so the value is a bound, not a physical estimate.
     Returns lines such as ``"transition_velocity = 1 at the edge of its grid [0.1, 1]"``."""
-    from robust_drake.model_repair.effects import EFFECTS
+    from robust_drake.effects import EFFECTS
 
     cls = EFFECTS.get(kind)
     out = []

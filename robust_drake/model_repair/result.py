@@ -3,7 +3,7 @@
 :class:`RepairResult` is a read-only mapping over the report dictionary (``report.json``), so
 ``res["verdict"]``, ``res["final"]["rms_validate"]``, ``dict(res)`` and ``json.dumps(res.report)``
 work as they did on the plain dict; it adds the identified models (``model``, ``baseline_model``:
-:class:`~robust_drake.model_repair.model.IdentifiedModel`), ``plot()`` and ``to_markdown()``.
+:class:`~robust_drake.identification.model.IdentifiedModel`), ``plot()`` and ``to_markdown()``.
 """
 
 from __future__ import annotations
@@ -43,7 +43,7 @@ class RepairResult(Mapping):
 
     def _model(self, stage: str):
         if stage not in self._models:
-            from robust_drake.model_repair.model import IdentifiedModel
+            from robust_drake.identification.model import IdentifiedModel
 
             self._models[stage] = IdentifiedModel.from_report(self._report, stage)
         return self._models[stage]

@@ -34,7 +34,7 @@ Rows (per gap-free segment of every file, :func:`selection_split`)::
   with the earlier fold tolerance 1e-10 the baseline's held-out error on a simulated 6-axis arm
   was 646 instead of 1.18, and any added column looked like an 80-99 % gain.)
 * **Physical admissibility**: every kind's fitted parameters must satisfy its own rule
-  (``Effect.admissible``, with :class:`~robust_drake.model_repair.effects.PhysicalContext`: the
+  (``Effect.admissible``, with :class:`~robust_drake.effects.PhysicalContext`: the
   fit's Coulomb/viscous levels, torque range, duration, analysis band, the delay bound from the
   robot description); an inadmissible fit is rejected before its CV score is computed.
 
@@ -106,7 +106,7 @@ SETTLE_TO = 0.01
 
 def implausible(effect, coef, context=None) -> str:
     """Empty string if the effect's fitted parameters are admissible (``Effect.admissible`` with
-    ``context``, a :class:`~robust_drake.model_repair.effects.PhysicalContext`), else the reason."""
+    ``context``, a :class:`~robust_drake.effects.PhysicalContext`), else the reason."""
     try:
         params = effect.parameters(coef)
     except Exception as exc:  # noqa: BLE001
@@ -512,7 +512,7 @@ def forward_select(cache: ColumnCache, candidates: list, min_gain: float = MIN_G
     ``icache``: instrument columns; every fit and held-out score then uses instrumental variables.
     ``gap`` [samples]: None = :func:`gap_samples`; ``confirm_gain`` None = no effect-size bar on
     the confirmation block beyond the paired test (a number: the confirmation gain must reach it
-    too); ``context``: :class:`~robust_drake.model_repair.effects.PhysicalContext` (default from
+    too); ``context``: :class:`~robust_drake.effects.PhysicalContext` (default from
     the data, no robot: a ``time_delay`` is then not admissible); ``level``: confidence level of
     the decisions (default ``decisions.LEVEL``; one-sided (1 - level) / 2 for a step, shared by
     the up to 1 + ``next_tries`` candidates tested on the confirmation block in it)."""
@@ -559,7 +559,7 @@ def _setup(cache, min_gain, folds, weights, icache, confirm_fraction, confirm_ga
     """The :class:`_Search` of a selection (baseline fit and weights, rows, blocks, noise levels)
     and the rows' info (``SelectionResult.rows``)."""
     from robust_drake.model_repair.decisions import LEVEL, MIN_BLOCKS, block_ids, block_length
-    from robust_drake.model_repair.effects import PhysicalContext
+    from robust_drake.effects import PhysicalContext
 
     data = cache.data
     Y0, names0, _ = cache.model([])

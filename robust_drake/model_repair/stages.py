@@ -116,7 +116,7 @@ class Inputs:
 def load_inputs(fit_paths, validate_paths, opts, log) -> Inputs:
     """Read the fit (and validation) files; hold out a tail when no validation files are given."""
     from robust_drake.identification import input_checks as IC
-    from robust_drake.model_repair.model import joint_names_of
+    from robust_drake.identification.model import joint_names_of
 
     warn: list[str] = []
     regressor = load_regressor(opts.robot)
@@ -483,7 +483,7 @@ def refit_weights(inp: Inputs, base: Baseline, est: Estimator, effects, opts) ->
 
 
 def select_effects(inp: Inputs, base: Baseline, est: Estimator, opts, log) -> Selection:
-    from robust_drake.model_repair.effects import PhysicalContext, all_candidates
+    from robust_drake.effects import PhysicalContext, all_candidates
     from robust_drake.model_repair.selection import forward_select
 
     # the kinds for structure outside the library enter the pool only where a diagnostic of the
@@ -506,7 +506,7 @@ def resolve_torque_scale(inp: Inputs, base: Baseline, est: Estimator, sel: Selec
     """torque_scale: pick the joint against the URDF (nominal.resolve_torque_scale)."""
     if not opts.nominal:
         return sel
-    from robust_drake.model_repair.effects import make_effect
+    from robust_drake.effects import make_effect
     from robust_drake.model_repair.nominal import resolve_torque_scale as resolve
 
     p0 = len(inp.regressor.base_names)
@@ -731,7 +731,7 @@ def _consistent_fit(inp: Inputs, effects, weights, cz=None):
     the integrated correlation time of the model's (least-squares) equation-error residual."""
     from robust_drake.identification.consistency import (consistent_identification, integrated_correlation,
                                                          rotor_candidates)
-    from robust_drake.model_repair.effects import RotorInertia
+    from robust_drake.effects import RotorInertia
 
     rotor = rotor_candidates(inp.regressor, inp.robot, effects)
     effs = list(effects) + [RotorInertia(r.joint) for r in rotor]
@@ -926,9 +926,9 @@ def replay_guard(inp: Inputs, base: Baseline, est: Estimator, sel: Selection, gu
 
 def identified_models(inp: Inputs, base: Baseline, est: Estimator, sel: Selection, fin: Final,
                       cons: "Consistent | None" = None):
-    """(baseline, final) :class:`~robust_drake.model_repair.model.IdentifiedModel` of the repair;
+    """(baseline, final) :class:`~robust_drake.identification.model.IdentifiedModel` of the repair;
     with ``cons`` each carries its physically consistent fit (``IdentifiedModel.consistent``)."""
-    from robust_drake.model_repair.model import IdentifiedEffect, IdentifiedModel
+    from robust_drake.identification.model import IdentifiedEffect, IdentifiedModel
 
     p0 = len(inp.regressor.base_names)
     summary = inp.fit.summary()

@@ -2,7 +2,7 @@
 
 Every diagram that drives a ``MultibodyPlant`` (the closed loop of :mod:`robust_drake.diagram`,
 the replay of :mod:`robust_drake.model_repair.replay`, the simulated experiment of
-:mod:`robust_drake.model_repair.simulated`) builds its plant-side forces with these two
+:mod:`robust_drake.synthetic.simulated`) builds its plant-side forces with these two
 functions::
 
     tau ------------------------------------------------+
@@ -11,7 +11,7 @@ functions::
 A force block is any LeafSystem with input ``state`` (2n, the plant's [q, v]), optionally input
 ``tau`` (n, the commanded torque) and output ``generalized_force`` (n) [N m or N]: friction
 (:class:`robust_drake.systems.friction.CoulombViscousFriction`), the effect blocks of
-:mod:`robust_drake.model_repair.effects`, user blocks.  The Adder sums its inputs in the order
+:mod:`robust_drake.effects`, user blocks.  The Adder sums its inputs in the order
 given (tau first), so a diagram's applied force does not depend on which builder made it.
 """
 

@@ -59,7 +59,7 @@ class CoulombViscousFriction(LeafSystem):
 
     ``v_eps`` None: sharp sign (the closed loop's plant, JS eq. 86).  ``v_eps`` > 0: smooth
     sign tanh(qd / v_eps); the simulated experiments use 0.01 rad/s
-    (``model_repair.simulated.TRUE_FRICTION_V_EPS``), the replays 0.05 rad/s
+    (``synthetic.simulated.TRUE_FRICTION_V_EPS``), the replays 0.05 rad/s
     (``model_repair.replay.REPLAY_V_EPS``).  ``nonnegative=False`` accepts identified
     coefficients of either sign (a replay of whatever the fit returned)."""
 

@@ -1,6 +1,6 @@
 """Confidence ellipsoid of an identified model's base parameters, in seconds at any data size.
 
-An :class:`~robust_drake.model_repair.model.IdentifiedModel` carries the least-squares (or IV)
+An :class:`~robust_drake.identification.model.IdentifiedModel` carries the least-squares (or IV)
 estimate theta_hat of the base parameters and its covariance Sigma. Asymptotically (many
 independent rows, zero-mean residual independent of the regressor) theta_hat ~ N(theta, Sigma),
 so

@@ -271,7 +271,7 @@ def identified_design(ctx, model, K_P=25.0, K_D=5.0, region="trajectory", tube=0
     from robust_drake.analysis.lyapunov import lyapunov_design
     from robust_drake.analysis.riccati import design_riccati
     from robust_drake.experiments.plant_draws import draw_plants
-    from robust_drake.model_repair.model import as_identified_model, controller_set, realise_base_parameters
+    from robust_drake.identification.model import as_identified_model, controller_set, realise_base_parameters
     from robust_drake.experiments.plant_draws import plant_setup
     from robust_drake.models import get_arm
     from robust_drake.regressor import InverseDynamicsRegressor
@@ -336,7 +336,7 @@ def _make(ctx, case, K_P=25.0, K_D=5.0, perturbation=None, boundary=None, region
         "beta": [float(x) for x in beta], "case": case, "boundary": float(boundary)}
     ctrl.rho = float(beta[0])  # rho(||e||) at e = 0; the full polynomial is in uncertainty["beta"]
     if ident is not None:  # the identified model: its set and its friction / effects compensated
-        from robust_drake.model_repair.model import attach_compensation
+        from robust_drake.identification.model import attach_compensation
 
         ctrl.uncertainty.update(source="sampled over the trajectory region against the identified model's "
                                 f"{1 - alpha:g} set (its centre and {ident['truths'] - 1} boundary plants); "

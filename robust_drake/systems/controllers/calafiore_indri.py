@@ -176,7 +176,7 @@ def ellipsoid_design(ctx, p: dict):
     ell = p.pop("ellipsoid", None)
     model, alpha, extra = p.pop("model", None), float(p.pop("alpha", 0.01)), {}
     if model is not None:  # an identified model: theta0 and E(P, theta0) = its confidence set
-        from robust_drake.model_repair.model import as_identified_model, controller_set
+        from robust_drake.identification.model import as_identified_model, controller_set
 
         if ell is not None or "theta0" in p or "P" in p:
             raise RobustDrakeError("calafiore: give either 'model' or 'ellipsoid' / 'theta0' / 'P', not both")
@@ -235,7 +235,7 @@ def _make_any_arm(ctx, robust, p):
     c.uncertainty = unc
     c.rho = unc["rho"] if robust else None
     if model is not None:  # its friction and effects fed forward, stateful ones as blocks
-        from robust_drake.model_repair.model import attach_compensation
+        from robust_drake.identification.model import attach_compensation
 
         attach_compensation(c, model)
     return _fused(c)

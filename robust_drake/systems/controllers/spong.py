@@ -607,7 +607,7 @@ def _identified_design(ctx, params, which, box):
     its base parameters, SP1's rho = sqrt(lambda_max(P)) and SP2's rho_i = sqrt(P_ii) of its
     1 - ``alpha`` confidence set E(P, theta0) (the largest ||theta~||_2 and |theta~_i| over it),
     or the box of ``rel_bound``/``abs_bound`` around its theta0; boundary layer by the same rule."""
-    from robust_drake.model_repair.model import as_identified_model, controller_set
+    from robust_drake.identification.model import as_identified_model, controller_set
     from robust_drake.regressor import InverseDynamicsRegressor
 
     model = as_identified_model(params.pop("model"))
@@ -658,7 +658,7 @@ def _make_spong(ctx, params, which):
         raise RobustDrakeError(f"{('sp1', 'sp2')[which]}: {exc}") from None
     c.uncertainty = unc
     if model is not None:  # its friction and effects fed forward, stateful ones as blocks
-        from robust_drake.model_repair.model import attach_compensation
+        from robust_drake.identification.model import attach_compensation
 
         attach_compensation(c, model)
     return FusedInputController(c)

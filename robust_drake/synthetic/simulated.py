@@ -2,7 +2,7 @@
 
 :func:`simulate_experiment` builds a Drake diagram of a "true" arm: the robot's URDF plant
 (continuous, error-controlled RK3), baseline friction (``systems.friction.CoulombViscousFriction``:
-Coulomb with a 0.01 rad/s tanh transition + viscous), any extra effect blocks from :mod:`robust_drake.model_repair.effects` (and the
+Coulomb with a 0.01 rad/s tanh transition + viscous), any extra effect blocks from :mod:`robust_drake.effects` (and the
 plant-modifying ones applied before ``Finalize``), driven by a PD controller tracking an exciting
 Fourier-series reference. The recorded data are sampled at ``rate_hz``: encoder-quantised joint
 angles and the commanded torque plus Gaussian measurement noise, written as a canonical CSV
@@ -33,7 +33,7 @@ from pydrake.systems.primitives import VectorLogSink
 
 from robust_drake.errors import RobustDrakeError
 from robust_drake.models import JointLimits
-from robust_drake.model_repair.effects import (EFFECTS, Effect, add_effect_blocks, load_plant,
+from robust_drake.effects import (EFFECTS, Effect, add_effect_blocks, load_plant,
                                                   make_effect)
 from robust_drake.systems.friction import CoulombViscousFriction
 from robust_drake.trajectories import check_within_limits
@@ -333,7 +333,7 @@ def strip_rotor_inertia(robot, out_path) -> str:
     lacks the motors' reflected inertia). Returns the new path."""
     import re
 
-    from robust_drake.model_repair.effects import resolve_robot_path
+    from robust_drake.effects import resolve_robot_path
     text = open(resolve_robot_path(robot)).read()
     text = re.sub(r"\s*<drake:rotor_inertia[^>]*/>", "", text)
     with open(out_path, "w") as fh:

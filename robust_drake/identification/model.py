@@ -36,7 +36,7 @@ class IdentifiedEffect:
 
     def effect(self, robot=None):
         """The :class:`effects.Effect` instance, shape parameters read back from ``parameters``."""
-        from robust_drake.model_repair.effects import EFFECTS, make_effect
+        from robust_drake.effects import EFFECTS, make_effect
 
         if self.kind not in EFFECTS:
             raise RobustDrakeError(f"unknown effect kind {self.kind!r} in the identified model")
@@ -95,7 +95,7 @@ class IdentifiedModel:
     #: the repair's physically consistent fit of the same model (``identification.consistency``):
     #: {"solver", "bodies": {link: {"mass", "com", "inertia_origin"}}, "extras": {"Ia_<joint>": ...},
     #: "base_values", "coulomb", "viscous", "effect_coefficients", "min_pseudo_inertia_eig"};
-    #: None when it was not computed (``model_repair.export`` writes the URDF from it)
+    #: None when it was not computed (``identification.export`` writes the URDF from it)
     consistent: dict | None = None
 
     @property
@@ -199,10 +199,10 @@ class IdentifiedModel:
         theta0, P = confidence_ellipsoid(self, alpha)
         return Ellipsoid(theta0, P)
 
-    # ------------------------------------------------------------------ export (model_repair/export.py)
+    # ------------------------------------------------------------------ export (identification/export.py)
     def consistent_model(self) -> "IdentifiedModel":
-        """This model with the physically consistent fit's values (``model_repair.export``)."""
-        from robust_drake.model_repair.export import consistent_model
+        """This model with the physically consistent fit's values (``identification.export``)."""
+        from robust_drake.identification.export import consistent_model
 
         return consistent_model(self)
 
@@ -210,15 +210,15 @@ class IdentifiedModel:
     def from_export(cls, path) -> "IdentifiedModel":
         """The model of a ``to_urdf`` export (the URDF or its ``.identified.yaml`` sidecar):
         robot = the exported URDF, its base parameters, friction and effects from the sidecar
-        (``model_repair.export.read_export``)."""
-        from robust_drake.model_repair.export import read_export
+        (``identification.export.read_export``)."""
+        from robust_drake.identification.export import read_export
 
         return cls.from_json(read_export(path))
 
     def to_urdf(self, path) -> dict:
         """Write the URDF of the physically consistent identified arm and the effects a URDF cannot
-        hold in a sidecar YAML (``model_repair.export.to_urdf``); returns the written paths."""
-        from robust_drake.model_repair.export import to_urdf
+        hold in a sidecar YAML (``identification.export.to_urdf``); returns the written paths."""
+        from robust_drake.identification.export import to_urdf
 
         return to_urdf(self, path)
 
@@ -387,7 +387,7 @@ class IdentifiedModel:
     def add_effect_blocks(self, builder, plant, tau_port, sample_period=None):
         """Sum ``tau_port`` and the force-type effect blocks into the plant's applied
         generalized force (``effects.add_effect_blocks``); returns the added blocks."""
-        from robust_drake.model_repair.effects import add_effect_blocks
+        from robust_drake.effects import add_effect_blocks
 
         return add_effect_blocks(builder, plant, tau_port, self.effect_terms(), sample_period=sample_period)
 
@@ -449,7 +449,7 @@ def compensation_role(eff) -> str:
 
 
 def _base_generalized_force():
-    from robust_drake.model_repair.effects import Effect
+    from robust_drake.effects import Effect
 
     return Effect.generalized_force
 

@@ -15,7 +15,7 @@ k [N m/rad] and c [N m s/rad] are the contact stiffness and damping of the teeth
 gap the link receives no drive torque and the motor accelerates alone; at the end of the gap
 the teeth hit. For the rigid model the fitter holds, the motor inertia J_m sits on the link
 (reflected rotor inertia), so a simulated arm with backlash takes J_m off the link side
-(:func:`robust_drake.model_repair.simulated_cases.backlash_case`).
+(:func:`robust_drake.synthetic.simulated_cases.backlash_case`).
 
 Why backlash is NOT a library kind (issue 13): its effect on a log of motor torque and link
 position is a burst of residual at every reversal of the transmitted torque whose timing depends

@@ -1,6 +1,6 @@
 """The issue-21 battery: hidden effects and setup changes on six- and seven-axis arms.
 
-Builds on :func:`robust_drake.model_repair.simulated.simulate_experiment` (the true plant: URDF,
+Builds on :func:`robust_drake.synthetic.simulated.simulate_experiment` (the true plant: URDF,
 baseline Coulomb + viscous friction, library effects from :mod:`effects` with their Drake
 blocks, PD tracking of a random Fourier reference) and on :func:`battery.described_copy`.  What
 is new here: arms of UR5 class (``robots/ur5``) and the 7-joint ``serial7`` / ``panda``
@@ -50,7 +50,7 @@ import numpy as np
 import pandas as pd
 
 from robust_drake.errors import RobustDrakeError
-from robust_drake.model_repair.simulated import HIDDEN_CASES, simulate_experiment
+from robust_drake.synthetic.simulated import HIDDEN_CASES, simulate_experiment
 
 #: per arm: simulation settings (baseline friction [N m], [N m s/rad]; excitation), the noise
 #: model (1) (``rel``, ``floor`` [N m]) and the joints the cases put their effects on
@@ -139,7 +139,7 @@ def unit_torque_rms(kind: str, joint, shape: dict, arm: str, seed: int, rate_hz:
     """Per joint, the RMS torque [N m] of the effect ``kind`` with its key parameter 1 (shape
     ``shape``, other parameters as ``simulated.HIDDEN_CASES``) on the no-effect run's true motion
     (columns of :meth:`Effect.evaluate_columns` times :meth:`Effect.coef_from_parameters`)."""
-    from robust_drake.model_repair.effects import make_effect, time_derivative
+    from robust_drake.effects import make_effect, time_derivative
 
     tr = _none_run(arm, seed, rate_hz, duration)
     q, qd, tau, t = tr["q"], tr["qd"], tr["tau"], tr["t"]
@@ -196,7 +196,7 @@ def library_case(arm: str, kind: str, level: float, joint: int | None = None, ou
     if kind == "rotor_inertia":
         plant = fit_robot = without_rotor(arm, joint, os.path.join(out_dir, f"{arm}_no_rotor{joint}.urdf"))
     if kind == "time_delay":
-        from robust_drake.model_repair.battery import described_copy
+        from robust_drake.synthetic.battery import described_copy
         fit_robot = described_copy(arm, out_dir, **BUS)
     effs = [(kind, joint, params)]
     fits, vals = _pair(plant, plant, effs, effs, arm, out_dir, f"{kind}_{level:g}x", rate_hz, duration, seed)
@@ -261,7 +261,7 @@ def generate(arm: str, case: str, out_dir: str, rate_hz: float = 500.0, duration
         params = {"delay": DELAY}
         effs = [("time_delay", None, params)]
         fits, vals = _pair(arm, arm, effs, effs, arm, out_dir, case, rate_hz, duration, seed)
-        from robust_drake.model_repair.battery import described_copy
+        from robust_drake.synthetic.battery import described_copy
         t = _truth("time_delay", None, params, "delay", fit_robot=described_copy(arm, out_dir, **BUS))
     t.update(case=case, robot=arm)
     t["effects"] = [(x["kind"], x["joint"], x["parameters"]) for x in [t] + t.get("also", [])]
@@ -276,7 +276,7 @@ def without_rotor(arm: str, joint: int, out_path: str) -> str:
     which the error-controlled integrator crawled, 7 min for one 10 s run.)  Returns the path."""
     import re
 
-    from robust_drake.model_repair.effects import resolve_robot_path
+    from robust_drake.effects import resolve_robot_path
 
     text = open(resolve_robot_path(arm)).read()
     pat = re.compile(r'(<joint name="joint%d"/>.*?)\s*<drake:rotor_inertia[^>]*/>' % (joint + 1), re.S)
@@ -308,7 +308,7 @@ def claimed(rep: dict) -> list[tuple]:
 def matches(rep: dict, truth: dict) -> dict:
     """Per hidden effect of ``truth['effects']``: was its kind named on its joint, and the
     relative error of its key parameter (None if not named)."""
-    from robust_drake.model_repair.battery import _estimate
+    from robust_drake.synthetic.battery import _estimate
 
     out = []
     for kind, joint, params in truth.get("effects", []):

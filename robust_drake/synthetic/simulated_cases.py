@@ -1,6 +1,6 @@
 """Simulated experiments with effects OUTSIDE the original effect library (issue 13).
 
-Builds on :func:`robust_drake.model_repair.simulated.simulate_experiment` (its ``extra_blocks``
+Builds on :func:`robust_drake.synthetic.simulated.simulate_experiment` (its ``extra_blocks``
 hook): each case adds one true-plant block that no kind of the original library represents,
 on an arm other than the D2R2 / default C.1 arm. Every block has input ``state`` (2n) [and
 ``tau`` (n)] and output ``generalized_force`` (n), summed into the plant's applied force like
@@ -29,7 +29,7 @@ from pydrake.systems.framework import LeafSystem
 
 from robust_drake.description import packaged_description
 from robust_drake.errors import RobustDrakeError
-from robust_drake.model_repair.simulated import PeriodicDisturbance, simulate_experiment
+from robust_drake.synthetic.simulated import PeriodicDisturbance, simulate_experiment
 
 
 class DeadZoneDriver(LeafSystem):
@@ -166,15 +166,15 @@ BACKLASH = dict(joint=1, b=math.radians(0.25), frequency_hz=25.0, damping_ratio=
 def backlash_case(robot: str = "siciliano_2link", seed: int = 0, out_dir=None, duration: float = 12.0,
                   rate_hz: float = 250.0, **backlash):
     """Fit and validation CSVs of ``robot`` with backlash in one joint's drive (outside the
-    library, :mod:`robust_drake.model_repair.backlash`).
+    library, :mod:`robust_drake.synthetic.backlash`).
 
     The true plant is ``robot``'s URDF with the motors' reflected inertia taken off the links
     (``simulated.strip_rotor_inertia``) and put back on the far side of the gap: on the backlash
     joint as the drive's motor inertia J_m, on the others (rigid drives) as the library's
     ``rotor_inertia`` plant change. The fitter is given ``robot`` (rigid, inertia on the links),
     which is exact except while the gap is crossed. Returns (fit_csv, validate_csv, truth)."""
-    from robust_drake.model_repair.backlash import BacklashDrive, contact_parameters
-    from robust_drake.model_repair.simulated import strip_rotor_inertia
+    from robust_drake.synthetic.backlash import BacklashDrive, contact_parameters
+    from robust_drake.synthetic.simulated import strip_rotor_inertia
 
     if robot not in ARMS:
         raise RobustDrakeError(f"no simulation settings for {robot!r}; known: {', '.join(ARMS)}")

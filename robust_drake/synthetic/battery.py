@@ -37,8 +37,8 @@ import time
 import numpy as np
 import pandas as pd
 
-from robust_drake.model_repair.simulated import HIDDEN_CASES, simulate_experiment, strip_rotor_inertia
-from robust_drake.model_repair.simulated_cases import ARMS, backlash_case, outside_case
+from robust_drake.synthetic.simulated import HIDDEN_CASES, simulate_experiment, strip_rotor_inertia
+from robust_drake.synthetic.simulated_cases import ARMS, backlash_case, outside_case
 
 BATTERY_ARMS = ("siciliano_2link", "puma560_3link", "serial7")
 DURATION = 8.0  # s per run
@@ -140,7 +140,7 @@ def described_copy(robot: str, out_dir: str, **facts) -> str:
     import yaml
 
     from robust_drake.description import description_path
-    from robust_drake.model_repair.effects import resolve_robot_path
+    from robust_drake.effects import resolve_robot_path
 
     stem = f"{robot}_described"
     urdf = os.path.join(out_dir, stem + ".urdf")

@@ -1,4 +1,4 @@
-"""Plain identification: logs -> an :class:`~robust_drake.model_repair.model.IdentifiedModel`.
+"""Plain identification: logs -> an :class:`~robust_drake.identification.model.IdentifiedModel`.
 
 Rigid body (the URDF's base parameters, Drake-derived regressor) + Coulomb and viscous friction,
 linear in the parameters (CI eq. 2), weighted least squares with the per-joint weights of the

@@ -226,7 +226,7 @@ def to_urdf(model, path) -> dict:
                      "viscous_in_urdf_damping": [float(x) for x in damping]},
         "effects": [{"kind": e.kind, "joint": e.joint, "parameters": _plain(e.parameters),
                      "coefficients": [float(x) for x in e.coefficients]} for e in sidecar_effects],
-        "sign_convention": "tau = Y theta + fc sgn(qd) + fv qd + sum_k Phi_k c_k (model_repair/model.py)",
+        "sign_convention": "tau = Y theta + fc sgn(qd) + fv qd + sum_k Phi_k c_k (identification/model.py)",
         "consistent": {"solver": c.get("solver"), "min_pseudo_inertia_eig": c.get("min_pseudo_inertia_eig")},
         "data": _plain(dict(model.data)), "notes": notes,
     }
