@@ -36,7 +36,7 @@ import numpy as np
 
 from robust_drake.experiments.logs_to_control import (LogsToControlConfig, track_plant, design_eq15,
                                                       identified_set)
-from robust_drake.experiments.plant_draws import draw_plants
+from robust_drake.uncertainty.plant_draws import draw_plants
 from robust_drake.experiments.ultimate_bound import bound_region, mass_bounds, per_joint_bound
 import robust_drake as rd
 

@@ -10,14 +10,24 @@ from __future__ import annotations
 
 import pathlib
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
 if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.figure import Figure
 
-    from robust_drake.diagram import SimulationResult
+
+class TrackedRun(Protocol):
+    """What the tracking figures read of a run (``robust_drake.diagram.SimulationResult`` has it):
+    this module stays below the closed-loop builder and imports nothing of it."""
+
+    t: np.ndarray  # [s]
+    q: np.ndarray  # [rad]
+    q_d: np.ndarray  # [rad]
+    tau: np.ndarray  # [N m]
+    config: dict
+    link_lengths: tuple | None
 
 
 #: The shared look of every figure of the package (matplotlib rcParams, applied with
@@ -172,7 +182,7 @@ def window_limits(t, y, skip: float, pad: float = 0.08):
 
 
 @styled
-def tracking_figure(result: "SimulationResult", title: str | None = None) -> "Figure":
+def tracking_figure(result: "TrackedRun", title: str | None = None) -> "Figure":
     """Tracking errors per joint [rad], task-space error [mm] and torques [N m] against time,
     the layout of JS figures 4-11, as a matplotlib ``Figure``.
 
@@ -250,7 +260,7 @@ def tracking_figure(result: "SimulationResult", title: str | None = None) -> "Fi
 
 
 @styled
-def task_path_figure(result: "SimulationResult", title: str | None = None) -> "Figure":
+def task_path_figure(result: "TrackedRun", title: str | None = None) -> "Figure":
     """The end effector's path in the plane, desired and actual [m] (planar 2-link arms), with an
     inset of the distance between them [mm] against time (the paths themselves lie within a line
     width of each other).
@@ -299,7 +309,7 @@ def task_path_figure(result: "SimulationResult", title: str | None = None) -> "F
     return fig
 
 
-def plot_tracking(result: "SimulationResult", path: "str | pathlib.Path", title: str | None = None) -> pathlib.Path:
+def plot_tracking(result: "TrackedRun", path: "str | pathlib.Path", title: str | None = None) -> pathlib.Path:
     """Write :func:`tracking_figure` to ``path`` (PNG; the folder is created).
 
     Parameters

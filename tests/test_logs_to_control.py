@@ -175,7 +175,7 @@ def test_sampled_layer_is_100x_smaller_without_chattering():
     identical to 0.3 %) and a smaller error; 8x smaller still, the sampled loop chatters (waist
     torque variation measured 135x)."""
     from robust_drake.experiments.logs_to_control import track_plant, design_eq15, identified_set
-    from robust_drake.experiments.plant_draws import draw_plants
+    from robust_drake.uncertainty.plant_draws import draw_plants
 
     cfg = LogsToControlConfig(robot="puma560_3link")
     _, theta0, P, reg, _, _ = identified_set(cfg, None)

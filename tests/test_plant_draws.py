@@ -1,9 +1,9 @@
 """Plants drawn across a base-parameter ellipsoid are physically valid arms with the drawn
-parameters (experiments.plant_draws)."""
+parameters (uncertainty.plant_draws)."""
 
 import numpy as np
 
-from robust_drake.experiments.plant_draws import draw_plants, make_physical, standard_for_base
+from robust_drake.uncertainty.plant_draws import draw_plants, make_physical, standard_for_base
 from robust_drake.models import make_plant
 from robust_drake.regressor import InverseDynamicsRegressor
 

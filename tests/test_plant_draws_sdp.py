@@ -1,10 +1,10 @@
-"""The plant-draw SDPs posed with Drake's MathematicalProgram (experiments.plant_draws) against
+"""The plant-draw SDPs posed with Drake's MathematicalProgram (uncertainty.plant_draws) against
 the same problems written independently in cvxpy, and their solver-free certificates."""
 
 import numpy as np
 import pytest
 
-from robust_drake.experiments.plant_draws import (NearestPhysical, PhysicalBySdp, _weights, physical_certificate,
+from robust_drake.uncertainty.plant_draws import (NearestPhysical, PhysicalBySdp, _weights, physical_certificate,
                                                   plant_setup)
 from robust_drake.models import make_plant
 from robust_drake.regressor import InverseDynamicsRegressor
@@ -182,7 +182,7 @@ def test_draws_whose_projection_fails_its_certificate_are_not_used(monkeypatch):
     """PUMA, a +-60 % set (most of it no rigid-body arm), two tries per draw: when every projection
     fails (solver or certificate), draw_plants refuses with a one-line error instead of a plant."""
     from robust_drake.errors import RobustDrakeError
-    from robust_drake.experiments import plant_draws
+    from robust_drake.uncertainty import plant_draws
 
     reg = InverseDynamicsRegressor.from_robot("puma560_3link")
     th0 = reg.base_parameters()

@@ -5,7 +5,7 @@ sampled-loop boundary layer against chattering."""
 import numpy as np
 import pytest
 
-from robust_drake.experiments.plant_draws import NearestPhysical, PhysicalBySdp, plant_setup
+from robust_drake.uncertainty.plant_draws import NearestPhysical, PhysicalBySdp, plant_setup
 from robust_drake.experiments.ultimate_bound import bound_region, mass_joints, mass_matrices
 from robust_drake.models import make_plant
 from robust_drake.regressor import InverseDynamicsRegressor
@@ -55,7 +55,7 @@ def test_sdp_realises_base_parameters_the_closed_form_repair_cannot():
     (whole unseen columns of K only) gives up, the SDP finds a plant: Drake's base parameters of it
     equal theta, every central inertia is positive definite and satisfies the triangle
     inequality, masses unchanged."""
-    from robust_drake.experiments.plant_draws import make_physical, standard_for_base
+    from robust_drake.uncertainty.plant_draws import make_physical, standard_for_base
 
     reg = InverseDynamicsRegressor.from_robot("puma560_3link")
     pi_nom = reg.standard_parameters()

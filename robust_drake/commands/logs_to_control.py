@@ -6,7 +6,7 @@ C.1, the Siciliano arm, the PUMA 560's first three joints, ...) is identified fr
 log, the 1 - alpha chi2 confidence ellipsoid of the base parameters is built
 (``uncertainty.confidence``), Calafiore & Indri's eq. 15 is designed from it, and plants drawn
 across the set (half on its boundary, half inside, each a physically valid arm:
-``experiments.plant_draws``) are tracked; each run's largest error per joint after the transient
+``uncertainty.plant_draws``) are tracked; each run's largest error per joint after the transient
 is compared with that joint's ultimate bound (``experiments.ultimate_bound``). The last line (and
 ``--json``'s ``guaranteed`` / ``verdict``) says whether every draw stayed within its bound; the exit
 status is 1 when not (a diverged draw, a draw outside its bound, or bounds wider than the region

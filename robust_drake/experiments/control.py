@@ -18,7 +18,7 @@ and for the simulated demo of ``logs-to-control``:
    saturation (the theory's assumptions), the ``sine`` reference for ``track_duration`` s at the
    robot's rate;
 4. Monte Carlo over the set: half the draws on its boundary, half inside, each a physically valid
-   arm (``experiments.plant_draws``) with the identified friction and effects; each run's largest
+   arm (``uncertainty.plant_draws``) with the identified friction and effects; each run's largest
    error per joint after ``transient`` is compared with that plant's per-joint ultimate bound
    (``ultimate_bound.per_joint_bound`` with rho epsilon: epsilon for CI, rho epsilon for SP1,
    sum rho_i epsilon_i for SP2; M(q) on ``ultimate_bound.bound_region``). The verdict says whether
@@ -121,7 +121,7 @@ def recentre_on_rigid_body(reg, theta0, P):
     ||theta - theta_c||_{P^-1} <= ||theta - theta0||_{P^-1} + ||theta0 - theta_c||_{P^-1} <= 1 + r_c,
     so E(P, theta0) lies in E(P_c, theta_c), the set eq. 15 is designed for; the price is the
     factor (1 + r_c) on the set's size."""
-    from robust_drake.experiments.plant_draws import NearestPhysical
+    from robust_drake.uncertainty.plant_draws import NearestPhysical
     from robust_drake.uncertainty.confidence import mahalanobis_radius
 
     pi = NearestPhysical(reg, reg.standard_parameters(), theta0, P)(theta0)
@@ -274,7 +274,7 @@ def run_control(model, cfg: ControlConfig | None = None, progress=None, desc: st
     ``verdict``) plus ``controller``, ``design``, ``nominal`` and ``design_file``. With ``progress``
     None a bar (terminal, notebook) or a log line every ~10 % labelled ``desc`` follows the steps."""
     from robust_drake.diagram import build_closed_loop
-    from robust_drake.experiments.plant_draws import draw_plants
+    from robust_drake.uncertainty.plant_draws import draw_plants
     from robust_drake.experiments.ultimate_bound import bound_region
     from robust_drake.log import progress_bar, progress_callback
     from robust_drake.loop_defaults import robot_rate

@@ -32,7 +32,7 @@ DFKI C.1, the Siciliano arm, the PUMA 560's first three joints and serial7).
    layer (``ultimate_bound.sampled_layer``, M(q) of theta0 from the regressor along the loop's
    reference): ~100x below the previous rule max ||D E||^2 / min K on the PUMA with the same
    torque variation (8x smaller chatters).
-5. Monte Carlo over the whole set (``experiments.plant_draws``): half the draws aimed at its
+5. Monte Carlo over the whole set (``uncertainty.plant_draws``): half the draws aimed at its
    boundary (||z|| = 1), half uniform inside, each realised as a physically valid plant (inertias
    changed, masses kept; a draw no rigid body realises is redrawn, after 20 the nearest valid point
    of the set replaces it: most of a 3D arm's set is no rigid body). Each closed loop

@@ -372,7 +372,7 @@ class IdentifiedModel:
 
     def _rigid_body_setup(self):
         """``setup(plant, context)`` writing the identified rigid body into a plant of ``robot``."""
-        from robust_drake.experiments.plant_draws import plant_setup
+        from robust_drake.uncertainty.plant_draws import plant_setup
         from robust_drake.regressor import InverseDynamicsRegressor
 
         reg = InverseDynamicsRegressor.from_robot(self.robot)
@@ -457,10 +457,10 @@ def _base_generalized_force():
 def realise_base_parameters(model, reg, margin: float = 1e-4):
     """(pi, info): standard parameters of a rigid-body arm (URDF masses kept) whose base
     parameters are the model's: the closed-form nearest point or the SDP of
-    ``experiments.plant_draws`` (certified); when the identified centre is no rigid body, the
+    ``uncertainty.plant_draws`` (certified); when the identified centre is no rigid body, the
     nearest physically valid point of its 99 % confidence set (``plant_draws.NearestPhysical``;
     ``info["projected"]`` and its Mahalanobis radius)."""
-    from robust_drake.experiments.plant_draws import NearestPhysical, PhysicalBySdp, make_physical, standard_for_base
+    from robust_drake.uncertainty.plant_draws import NearestPhysical, PhysicalBySdp, make_physical, standard_for_base
 
     theta = np.asarray(model.base_values, float)
     pi_nom = reg.standard_parameters()

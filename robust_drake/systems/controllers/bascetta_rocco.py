@@ -263,16 +263,16 @@ def identified_design(ctx, model, K_P=25.0, K_D=5.0, region="trajectory", tube=0
     and n_hat(q, qd) = C qd + g of the identified rigid body (``IdentifiedModel`` realised as URDF
     inertias), and the bounds of BR eqs. 9-11 as the worst over candidate true plants of its
     1 - ``alpha`` confidence set: the centre and ``truths`` plants drawn on the set's boundary
-    (``experiments.plant_draws``, seed 0), each physically valid (sampled, not certified: a plant
+    (``uncertainty.plant_draws``, seed 0), each physically valid (sampled, not certified: a plant
     inside the set between them is not checked)."""
     import dataclasses as dc
 
     from robust_drake.analysis.bascetta_bounds import beta_case_a, beta_case_b, compute_bounds, sample_configurations
     from robust_drake.analysis.lyapunov import lyapunov_design
     from robust_drake.analysis.riccati import design_riccati
-    from robust_drake.experiments.plant_draws import draw_plants
+    from robust_drake.uncertainty.plant_draws import draw_plants
     from robust_drake.identification.model import as_identified_model, controller_set, realise_base_parameters
-    from robust_drake.experiments.plant_draws import plant_setup
+    from robust_drake.uncertainty.plant_draws import plant_setup
     from robust_drake.models import get_arm
     from robust_drake.regressor import InverseDynamicsRegressor
     from robust_drake.trajectories import make_reference
