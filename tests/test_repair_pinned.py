@@ -16,6 +16,8 @@ import numpy as np
 import pytest
 
 RTOL = 1e-9
+#: the selection's CV scores (see test_selection_steps_are_the_pinned_ones)
+SCORE_RTOL = 1e-7
 
 #: from main at 869d20d (see the module docstring)
 PINNED = {
@@ -92,4 +94,8 @@ def test_report_figures_are_the_pinned_ones(report):
 def test_selection_steps_are_the_pinned_ones(report):
     steps = [(s["label"], s["score_after"], s["accepted"]) for s in report["selection"]["steps"]]
     assert [(lb, acc) for lb, _, acc in steps] == [(lb, acc) for lb, _, acc in PINNED["steps"]]
-    assert _close([s for _, s, _ in steps], [s for _, s, _ in PINNED["steps"]])
+    # the selection's held-out scores come from fold fits on the whole data's identifiable
+    # subspace (eigen-directions down to RANK_TOL = 1e-6 of the largest singular value), which
+    # amplifies the round-off of the Gram products (summed in another order since a single-joint
+    # block's products are taken on its joint only) by up to ~1e6: 5.6e-9 relative measured here
+    assert _close([s for _, s, _ in steps], [s for _, s, _ in PINNED["steps"]], rtol=SCORE_RTOL)
