@@ -170,7 +170,7 @@ class ColumnCache:
         self._effect_bytes = sum(v[0].nbytes for v in self._effects.values())
         self._grams.clear()
         self._lefts.clear()
-        self._joints = {k: v for k, v in self._joints.items() if k == "base" or k in kept}
+        self._joints = {k: v for k, v in getattr(self, "_joints", {}).items() if k == "base" or k in kept}
         self._last_prediction = (None, None)
 
     def names(self, effects) -> list[str]:
@@ -293,7 +293,7 @@ class ColumnCache:
         for a, (Za, ka, sa) in enumerate(zip(zb, zkeys, spans)):
             key = ("g", ka) + ctx
             if key not in self._grams:
-                self._grams[key] = [_wsum(Za, self.data.tau[:, :, None], w2, r, zc._joints.get(ka))[:, 0]
+                self._grams[key] = [_wsum(Za, self.data.tau[:, :, None], w2, r, _joints_of(zc, ka))[:, 0]
                                     for r in runs]
             for g, val in zip(gs, self._grams[key]):
                 g[sa] = val
@@ -304,7 +304,7 @@ class ColumnCache:
                     if left is None and tkey in self._grams:
                         self._grams[key] = [v.T for v in self._grams[tkey]]
                     else:
-                        on = _common_joints(zc._joints.get(ka), self._joints.get(kb))
+                        on = _common_joints(_joints_of(zc, ka), _joints_of(self, kb))
                         self._grams[key] = [_wsum(Za, Yb, w2, r, on) for r in runs]
                 for G, val in zip(Gs, self._grams[key]):
                     G[sa, sb] = val
@@ -316,6 +316,12 @@ def nonzero_joints(Y: np.ndarray) -> tuple | None:
     is every joint (a single-joint effect: one joint)."""
     nz = np.flatnonzero(np.any(Y != 0, axis=(0, 2)))
     return None if len(nz) == Y.shape[1] else tuple(int(j) for j in nz)
+
+
+def _joints_of(cache, key):
+    """The nonzero joints of ``cache``'s block ``key`` (None = all or not known: a cache built
+    without :meth:`ColumnCache.effect`'s bookkeeping)."""
+    return getattr(cache, "_joints", {}).get(key)
 
 
 def _common_joints(a, b):
