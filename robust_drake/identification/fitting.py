@@ -98,6 +98,10 @@ class ColumnCache:
         self.memo_bytes = EFFECT_MEMO_BYTES
         self._grams: dict = {}
         self._lefts: dict = {}
+        #: memo key -> the joints where that block's columns are not all zero (None = all; a
+        #: single-joint effect's (N, n, k) block is zero on the other joints: its Gram products
+        #: are read on its joint only, :func:`_wsum`)
+        self._joints: dict = {"base": None}
         self._last_prediction: tuple = (None, None)
 
     def _key(self, effect):
@@ -136,6 +140,7 @@ class ColumnCache:
             Y *= self.keep[:, :, None]
         self._effects[key] = (Y, list(names), effect)
         self._held[key] = effect
+        self._joints[key] = nonzero_joints(Y)
         self._effect_bytes += Y.nbytes
         while self._effect_bytes > self.memo_bytes and len(self._effects) > 1:
             old = next(iter(self._effects))
@@ -165,6 +170,7 @@ class ColumnCache:
         self._effect_bytes = sum(v[0].nbytes for v in self._effects.values())
         self._grams.clear()
         self._lefts.clear()
+        self._joints = {k: v for k, v in getattr(self, "_joints", {}).items() if k == "base" or k in kept}
         self._last_prediction = (None, None)
 
     def names(self, effects) -> list[str]:
@@ -287,7 +293,8 @@ class ColumnCache:
         for a, (Za, ka, sa) in enumerate(zip(zb, zkeys, spans)):
             key = ("g", ka) + ctx
             if key not in self._grams:
-                self._grams[key] = [_wsum(Za, self.data.tau[:, :, None], w2, r)[:, 0] for r in runs]
+                self._grams[key] = [_wsum(Za, self.data.tau[:, :, None], w2, r, _joints_of(zc, ka))[:, 0]
+                                    for r in runs]
             for g, val in zip(gs, self._grams[key]):
                 g[sa] = val
             for Yb, kb, sb in zip(yb, ykeys, spans):
@@ -297,16 +304,47 @@ class ColumnCache:
                     if left is None and tkey in self._grams:
                         self._grams[key] = [v.T for v in self._grams[tkey]]
                     else:
-                        self._grams[key] = [_wsum(Za, Yb, w2, r) for r in runs]
+                        on = _common_joints(_joints_of(zc, ka), _joints_of(self, kb))
+                        self._grams[key] = [_wsum(Za, Yb, w2, r, on) for r in runs]
                 for G, val in zip(Gs, self._grams[key]):
                     G[sa, sb] = val
         return Gs, gs
 
 
-def _wsum(A: np.ndarray, B: np.ndarray, w2: np.ndarray, runs: list[slice]) -> np.ndarray:
+def nonzero_joints(Y: np.ndarray) -> tuple | None:
+    """The joints j where the block Y (N, n, k) has a nonzero column entry, or None when that
+    is every joint (a single-joint effect: one joint)."""
+    nz = np.flatnonzero(np.any(Y != 0, axis=(0, 2)))
+    return None if len(nz) == Y.shape[1] else tuple(int(j) for j in nz)
+
+
+def _joints_of(cache, key):
+    """The nonzero joints of ``cache``'s block ``key`` (None = all or not known: a cache built
+    without :meth:`ColumnCache.effect`'s bookkeeping)."""
+    return getattr(cache, "_joints", {}).get(key)
+
+
+def _common_joints(a, b):
+    """Joints where two blocks are both nonzero (None = all joints)."""
+    if a is None:
+        return b
+    if b is None:
+        return a
+    return tuple(j for j in a if j in b)
+
+
+def _wsum(A: np.ndarray, B: np.ndarray, w2: np.ndarray, runs: list[slice], joints=None) -> np.ndarray:
     """sum_j w2_j sum_{rows in runs} A[rows, j, :]^T B[rows, j, :]: per run one product of the
-    stacked (rows * n, p) views, the joint weights applied to a copy of the narrower block."""
+    stacked (rows * n, p) views, the joint weights applied to a copy of the narrower block.
+    ``joints`` (None = all): the joints where A or B can be nonzero (the others add exact
+    zeros): then per run and joint one product of the (rows, k) views of that joint (a
+    single-joint effect's products cost 1/n of the stacked ones; equal up to round-off)."""
     out = np.zeros((A.shape[2], B.shape[2]))
+    if joints is not None:
+        for r in runs:
+            for j in joints:
+                out += w2[j] * (A[r, j, :].T @ B[r, j, :])
+        return out
     for r in runs:
         a, b = A[r].reshape(-1, A.shape[2]), B[r].reshape(-1, B.shape[2])
         wr = np.tile(w2, r.stop - r.start)[:, None]
@@ -324,6 +362,34 @@ def implicit_mask(effects, slices, p: int) -> tuple[list, np.ndarray]:
     for _, sl in imp:
         mask[sl] = False
     return imp, mask
+
+
+def _generic_columns(effect) -> bool:
+    """True when ``effect.evaluate_columns`` is the base class's (``Effect.evaluate_columns``:
+    joint j's features ``_features(j, ...)`` in its own column group, zeros elsewhere)."""
+    owner = next((c for c in type(effect).__mro__ if "evaluate_columns" in vars(c)), None)
+    return owner is not None and owner.__name__ == "Effect" and hasattr(effect, "_features")
+
+
+def implicit_term(effect, q, qd, qdd, tau, coef) -> np.ndarray:
+    """``effect.evaluate_columns(q, qd, qdd, tau) @ coef`` (N, n), the implicit prediction's
+    term, without the (N, n, k) column array when the columns are the generic per-joint ones
+    (joint j's features only in row j): out[:, j] = _features(j) @ coef_j. The zeros of the
+    other joints' groups add exact zeros, so the values are those of the joined product (one
+    coefficient per group: bit for bit)."""
+    if not _generic_columns(effect) or getattr(effect, "uses_taud", False):
+        return effect.evaluate_columns(q, qd, qdd, tau) @ coef
+    q = np.atleast_2d(np.asarray(q, dtype=float))
+    N, n = q.shape
+    coef = np.asarray(coef, float)
+    m = len(effect.coef_names)
+    out = np.zeros((N, n))
+    shared = effect.shared and effect.joint is None
+    for i, j in enumerate(effect.joints(n)):
+        f = np.asarray(effect._features(j, q, qd, qdd, tau, None), float).reshape(N, m)
+        c = coef if shared else coef[i * m:(i + 1) * m]
+        out[:, j] = f[:, 0] * c[0] if m == 1 else f @ c
+    return out
 
 
 def predict_tau(cache: "ColumnCache", effects, theta, rows=None, iterations: int = 30) -> np.ndarray:
@@ -345,7 +411,7 @@ def predict_tau(cache: "ColumnCache", effects, theta, rows=None, iterations: int
     q, qd, qdd = d.q[rows], d.qd[rows], d.qdd[rows]
     tau_hat = m.copy()
     for _ in range(iterations):
-        new = m + sum(e.evaluate_columns(q, qd, qdd, tau_hat) @ theta[sl] for e, sl in imp)
+        new = m + sum(implicit_term(e, q, qd, qdd, tau_hat, theta[sl]) for e, sl in imp)
         if cache.keep is not None:
             new = new * cache.keep[rows]
         done = np.max(np.abs(new - tau_hat)) < 1e-10
