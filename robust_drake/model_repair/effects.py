@@ -1139,7 +1139,6 @@ class FrictionDrift(TimeEffect):
 # ---------------------------------------------------------------------------------------------
 # Torques that depend on other joints' angles (issue 21)
 # ---------------------------------------------------------------------------------------------
-#: term token -> label of its column; k is a joint index from 0 (tokens: "s2" = sin q_2)
 #: term letter -> label; ``{k}`` is the joint NUMBER from 1 (``sin(q1)``: the first joint, as the
 #: CSV column ``q1``); the parsed tuples (:func:`parse_terms`) hold 0-based indices
 _TERM_LABELS = {"s": "sin(q{k})", "c": "cos(q{k})", "l": "q{k}", "p": "q{k}^2"}

@@ -275,7 +275,7 @@ def _write_friction(joints, cm, src):
         fv, fc = float(cm.viscous[j]), float(cm.coulomb[j])
         damping[j] = max(fv, 0.0)
         if fv < 0 or fc < 0:
-            notes.append(f"joint {j} ({jn}): fitted {'viscous' if fv < 0 else 'Coulomb'} level "
+            notes.append(f"joint {j + 1} ({jn}): fitted {'viscous' if fv < 0 else 'Coulomb'} level "
                          f"{fv if fv < 0 else fc:.4g} < 0 written as 0 in the URDF (kept in the sidecar)")
         for old in joints[jn].findall("dynamics"):
             joints[jn].remove(old)

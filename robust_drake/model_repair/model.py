@@ -12,7 +12,8 @@ Convention (the repair's, ``fitting.py``): the measured joint torque [N m] is
 with ``Y_b`` the base-parameter regressor (``regressor.py``), ``fc``/``fv`` Coulomb [N m] and
 viscous [N m s/rad] friction per joint and ``Phi_k c_k`` the chosen effects' columns
 (``effects.py``). An effect block's generalized force on the plant is ``-(Phi_k c_k)``.
-Joints are indexed from 0 in the URDF's order; ``joint_names`` are the URDF's names.
+Joints are indexed from 0 in the URDF's order in Python (``effects[k].joint``, arrays) and the
+model file; every text numbers them from 1 (README); ``joint_names`` are the URDF's names.
 """
 
 from __future__ import annotations
@@ -677,4 +678,4 @@ def joint_names_of(regressor, n: int) -> list[str]:
             names = [j.name() for j in moving]
         except Exception:  # noqa: BLE001 - a regressor without a Drake plant
             names = []
-    return names if len(names) == n else [f"j{i}" for i in range(n)]
+    return names if len(names) == n else [f"joint{i + 1}" for i in range(n)]
