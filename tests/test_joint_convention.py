@@ -184,3 +184,30 @@ def test_effect_label_and_term_tokens():
     cols = e.evaluate_columns(q)
     np.testing.assert_allclose(cols[0, 1], [np.sin(0.3), np.cos(0.3)])  # on joint 2's row, functions of q1
     assert list(e.parameters([1.0, 2.0], q)) [:2] == ["sin(q1)", "cos(q1)"]
+
+
+def test_model_files_of_version_1_are_read_in_the_new_numbering(tmp_path):
+    """A version-1 model file (configuration terms numbered from 0) reads back with the same
+    functions under the new names: "s0" on the elbow (sin of the first joint's angle) becomes
+    "s1", its coefficient sin(q0) becomes sin(q1); a saved model is version 2 and reads back as
+    written."""
+    from robust_drake.model_repair.effects import make_effect, parse_terms
+    from robust_drake.model_repair.model import MODEL_VERSION, IdentifiedModel
+
+    v1 = {"format": "robust_drake.identified_model", "version": 1, "robot": ROBOT,
+          "joint_names": ["joint1", "joint2", "joint3"], "base": {"names": ["b0"], "values": [1.0], "covariance": None},
+          "friction": {"coulomb": [0.1] * 3, "viscous": [0.01] * 3},
+          "effects": [{"kind": "configuration_dependent", "joint": 2, "coefficients": [1.2, -0.8],
+                       "parameters": {"terms": "s0,c0", "sin(q0)": 1.2, "cos(q0)": -0.8, "peak": 2.0}}]}
+    path = tmp_path / "v1.json"
+    path.write_text(json.dumps(v1))
+    m = IdentifiedModel.load(str(path))
+    (e,) = m.effects
+    assert e.joint == 2 and e.parameters == {"terms": "s1,c1", "sin(q1)": 1.2, "cos(q1)": -0.8, "peak": 2.0}
+    assert parse_terms(e.parameters["terms"]) == [("s", 0), ("c", 0)]  # still the first joint's angle
+    eff = make_effect("configuration_dependent", e.joint, terms=e.parameters["terms"])
+    np.testing.assert_allclose(eff.coef_from_parameters(e.parameters, 3), [1.2, -0.8])
+    m.save(str(tmp_path / "v2.json"))
+    doc = json.loads((tmp_path / "v2.json").read_text())
+    assert doc["version"] == MODEL_VERSION == 2 and doc["effects"][0]["parameters"]["terms"] == "s1,c1"
+    assert IdentifiedModel.load(str(tmp_path / "v2.json")).effects[0].parameters == e.parameters
