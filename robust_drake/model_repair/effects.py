@@ -346,7 +346,7 @@ class EffectForceBlock(LeafSystem):
         super().__init__()
         self.effect, self.n = effect, n
         self.coef = np.asarray(coef, dtype=float).copy()
-        self.set_name(f"effect_{effect.kind}_{'all' if effect.joint is None else effect.joint}")
+        self.set_name(f"effect_{effect.kind}_{'all' if effect.joint is None else effect.joint + 1}")
         self._state = self.DeclareVectorInputPort("state", 2 * n)
         self._tau = self.DeclareVectorInputPort("tau", n) if effect.needs_tau else None
         self.DeclareVectorOutputPort("generalized_force", n, self._calc)
@@ -934,7 +934,7 @@ class PreslidingFrictionBlock(LeafSystem):
         self.Fd[js] = np.asarray(coef, dtype=float).reshape(-1)  # one F_d per acting joint
         self.active = np.zeros(n)
         self.active[js] = 1.0
-        self.set_name(f"effect_presliding_friction_{'all' if effect.joint is None else effect.joint}")
+        self.set_name(f"effect_presliding_friction_{'all' if effect.joint is None else effect.joint + 1}")
         self._state = self.DeclareVectorInputPort("state", 2 * n)
         self.DeclareContinuousState(n)
         self.DeclareVectorOutputPort("generalized_force", n, self._calc,
@@ -997,7 +997,7 @@ class TimeEffectBlock(LeafSystem):
         super().__init__()
         self.effect, self.n = effect, n
         self.coef = np.asarray(coef, dtype=float).copy()
-        self.set_name(f"effect_{effect.kind}_{'all' if effect.joint is None else effect.joint}")
+        self.set_name(f"effect_{effect.kind}_{'all' if effect.joint is None else effect.joint + 1}")
         self._state = self.DeclareVectorInputPort("state", 2 * n)
         self.DeclareVectorOutputPort("generalized_force", n, self._calc)
 
@@ -1422,7 +1422,7 @@ class ConfigurationDependentBlock(LeafSystem):
         fun = {"s": math.sin, "c": math.cos, "l": float, "p": lambda x: x * x}
         terms = [(j, fun[f], k) for j, ts in effect.layout(n) for f, k in ts]
         self._fun = [(j, f, k, float(c)) for (j, f, k), c in zip(terms, self.coef)]
-        self.set_name(f"effect_{effect.kind}_{'all' if effect.joint is None else effect.joint}")
+        self.set_name(f"effect_{effect.kind}_{'all' if effect.joint is None else effect.joint + 1}")
         self._state = self.DeclareVectorInputPort("state", 2 * n)
         self.DeclareVectorOutputPort("generalized_force", n, self._calc,
                                      prerequisites_of_calc={self.input_port_ticket(self._state.get_index())})
