@@ -367,7 +367,7 @@ def repair_figure(report_or_dir: "dict | str | pathlib.Path") -> "Figure":
     Returns
     -------
     matplotlib.figure.Figure
-        One panel per data set (fit, validate), grouped bars per joint (numbered from 0 with the
+        One panel per data set (fit, validate), grouped bars per joint (numbered from 1 with the
         URDF's joint names, as in the report); detached from pyplot.
     """
     from robust_drake.errors import RobustDrakeError
@@ -377,7 +377,7 @@ def repair_figure(report_or_dir: "dict | str | pathlib.Path") -> "Figure":
         base, fin = rep["baseline"], rep["final"]
     except (KeyError, TypeError):
         raise RobustDrakeError("not a repair report: 'baseline' and 'final' are missing") from None
-    names = rep.get("joint_names") or [str(j) for j in range(len(base["rms_fit"]))]
+    names = rep.get("joint_names") or [f"joint{j + 1}" for j in range(len(base["rms_fit"]))]
     fig, axes = subplots(1, 2, figsize=(10, 4), sharey=True, squeeze=False)
     x = np.arange(len(names))
     for ax, key, what in zip(axes[0], ("rms_fit", "rms_validate"), ("fit data", "validation data")):
@@ -385,7 +385,7 @@ def repair_figure(report_or_dir: "dict | str | pathlib.Path") -> "Figure":
         f = np.array([np.nan if v is None else v for v in fin[key]], float)
         ax.bar(x - 0.2, b, 0.4, color="tab:red", label="baseline model")
         ax.bar(x + 0.2, f, 0.4, color="tab:blue", label="repaired model")
-        ax.set_xticks(x, [f"joint {j} ({n})" for j, n in enumerate(names)])
+        ax.set_xticks(x, [f"joint {j + 1} ({n})" for j, n in enumerate(names)])  # joints from 1 (README)
         ax.set_title(what)
         ax.grid(axis="y", alpha=0.3)
     axes[0, 0].set_ylabel("RMS torque residual [N m]")

@@ -224,14 +224,14 @@ def _placed(arm, what, lo, hi, offset):
     info = {"offset": off.tolist()}
     if moved.any():
         idx = np.flatnonzero(moved)
-        info["limits"] = (f"joints {idx.tolist()} (0-based) centred in their position limits"
+        info["limits"] = (f"joints {(idx + 1).tolist()} centred in their position limits"
                           + ("" if np.all(s == 1.0) else f"; amplitude scaled by {np.round(s, 4).tolist()}"))
-        _log_once(logging.INFO, f"{what} reference: joint(s) {idx.tolist()} "
+        _log_once(logging.INFO, f"{what} reference: joint(s) {(idx + 1).tolist()} "
                   f"({', '.join(limits.names[j] for j in idx)}) centred in their position limits, "
                   f"offset {np.round(off[idx], 4).tolist()} rad")
         if np.any(s < 1.0):
             shrunk = np.flatnonzero(s < 1.0)
-            _log_once(logging.WARNING, f"{what} reference: amplitude of joint(s) {shrunk.tolist()} "
+            _log_once(logging.WARNING, f"{what} reference: amplitude of joint(s) {(shrunk + 1).tolist()} "
                       f"({', '.join(limits.names[j] for j in shrunk)}) scaled by {np.round(s[shrunk], 4).tolist()} "
                       "to fit inside the joint limits")
     return off, s, info
@@ -264,7 +264,7 @@ def check_within_limits(reference, limits, duration: float, period: float, name:
     """RobustDrakeError (one line) if q_d of ``reference`` at the ticks k ``period``,
     0 <= k <= ceil(duration/period) + 1 (what a sampled loop reads), leaves a finite limit of
     ``limits`` (:class:`robust_drake.models.JointLimits`).  Names the first offending joint
-    (0-based index and URDF name), its limits, the reference's range on it, and the trajectory
+    (its number from 1 and URDF name), its limits, the reference's range on it, and the trajectory
     parameters that move it (``hint`` replaces that advice).  ``reference(t)`` returns
     (q (K, n), ...) for t of shape (K,)."""
     if limits is None or not limits.any_finite():
@@ -282,9 +282,9 @@ def check_within_limits(reference, limits, duration: float, period: float, name:
     hint = (f"set the trajectory parameters {' / '.join(keys)} (e.g. offset {0.5 * (lower[j] + upper[j]):.4g} "
             f"{u} on this joint, the middle of its range)" if "offset" in keys and np.isfinite(lower[j] + upper[j])
             else "choose a reference inside the limits") if hint is None else hint
-    more = f"; also joints {bad[1:].tolist()}" if bad.size > 1 else ""
+    more = f"; also joints {(bad[1:] + 1).tolist()}" if bad.size > 1 else ""
     raise RobustDrakeError(
-        f"reference {name or getattr(reference, 'name', 'reference')!r} leaves the position limits of joint {j} "
+        f"reference {name or getattr(reference, 'name', 'reference')!r} leaves the position limits of joint {j + 1} "
         f"({limits.names[j]}): q_d spans [{qmin[j]:.4g}, {qmax[j]:.4g}] {u} over {duration:g} s, limits "
         f"[{lower[j]:.4g}, {upper[j]:.4g}] {u}{more}; {hint}")
 

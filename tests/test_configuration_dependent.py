@@ -26,13 +26,14 @@ from robust_drake.synthetic.simulated_cases import ARMS
 
 PUMA = "puma560_3link"
 C1 = "dfki_double_pendulum_c1"
-#: the hidden cable on the PUMA's elbow (joint 2): the motor supplies
-#: 1.2 sin q0 - 0.8 cos q0 + 0.6 sin q1 + 1.0 cos q1 [N m] (torque noise 0.05 N m)
-CABLE = {"terms": "s0,c0,s1,c1", "sin(q0)": 1.2, "cos(q0)": -0.8, "sin(q1)": 0.6, "cos(q1)": 1.0}
+#: the hidden cable on the PUMA's elbow (index 2, joint 3): the motor supplies
+#: 1.2 sin q1 - 0.8 cos q1 + 0.6 sin q2 + 1.0 cos q2 [N m] (torque noise 0.05 N m); term tokens
+#: and coefficient names number joints from 1 like every label (README, "Joint numbering")
+CABLE = {"terms": "s1,c1,s2,c2", "sin(q1)": 1.2, "cos(q1)": -0.8, "sin(q2)": 0.6, "cos(q2)": 1.0}
 
 
 def _cable_by_hand(q):
-    """What the plant receives from the cable on joint 2, from CABLE's numbers (eq. CD1)."""
+    """What the plant receives from the cable on joint 3 (index 2), from CABLE's numbers (eq. CD1)."""
     return -(1.2 * math.sin(q[0]) - 0.8 * math.cos(q[0]) + 0.6 * math.sin(q[1]) + 1.0 * math.cos(q[1]))
 
 
@@ -56,7 +57,7 @@ def test_block_equals_minus_columns_times_coefficients_and_the_physics():
         np.testing.assert_allclose(f, -(cols[i] @ coef), atol=1e-12)
         np.testing.assert_allclose(f, [0.0, 0.0, _cable_by_hand(x)], atol=1e-12)
     back = eff.parameters(coef, q=X[:, :3])
-    for k in ("sin(q0)", "cos(q0)", "sin(q1)", "cos(q1)"):
+    for k in ("sin(q1)", "cos(q1)", "sin(q2)", "cos(q2)"):
         assert back[k] == pytest.approx(CABLE[k], abs=1e-12)
     by_hand = np.array([_cable_by_hand(x) for x in X])
     assert back["explained_rms"] == pytest.approx(np.sqrt(np.mean(by_hand**2)))
@@ -64,39 +65,41 @@ def test_block_equals_minus_columns_times_coefficients_and_the_physics():
 
 
 def test_prismatic_terms_and_bad_input():
-    eff = make_effect("configuration_dependent", 0, terms="l1,p1,s2")
+    eff = make_effect("configuration_dependent", 0, terms="l2,p2,s3")
     q = np.array([[0.3, 0.2, 1.0]])
     np.testing.assert_allclose(eff.evaluate_columns(q)[0, 0], [0.2, 0.04, math.sin(1.0)])
     assert len(eff.column_names(3)) == 3 and eff.num_coef(3) <= 2 * 3 + 1
-    for bad in (dict(joint=None, terms="s1"), dict(joint=1, terms="s1,c0"), dict(joint=1, terms="x0"), dict(joint=1, terms="")):
+    for bad in (dict(joint=None, terms="s1"), dict(joint=1, terms="s2,c1"), dict(joint=1, terms="s0"),
+                dict(joint=1, terms="x1"), dict(joint=1, terms="")):
         with pytest.raises(RobustDrakeError):
             make_effect("configuration_dependent", **bad)
-    with pytest.raises(RobustDrakeError, match="joint 3"):
-        make_effect("configuration_dependent", 0, terms="s3").evaluate_columns(q)
+    with pytest.raises(RobustDrakeError, match="joint 4 of a 3-joint arm"):
+        make_effect("configuration_dependent", 0, terms="s4").evaluate_columns(q)
 
 
 def test_gravity_aliases_are_the_first_links_own_gravity():
-    """C.1 in its vertical plane: joint 0 carries its own link's a sin q0 + b cos q0 (aliases of
-    s0, c0), not a function of q1 alone; joint 1's gravity is a function of q0 + q1 only."""
+    """C.1 in its vertical plane: joint 1 carries its own link's a sin q1 + b cos q1 (aliases of
+    s1, c1), not a function of q2 alone; joint 2's gravity is a function of q1 + q2 only."""
     reg = load_regressor(C1)
-    assert gravity_aliases(reg, 0, ["s0", "c0", "s1", "c1"]) == ["s0", "c0"]
-    assert gravity_aliases(reg, 1, ["s0", "c0"]) == []
+    assert gravity_aliases(reg, 0, ["s1", "c1", "s2", "c2"]) == ["s1", "c1"]
+    assert gravity_aliases(reg, 1, ["s1", "c1"]) == []
 
 
 def test_offered_only_where_another_joints_angle_explains_the_residual():
-    rows = [{"joint": 2, "variable": "q[0]", "eta2": 0.4, "p": 1e-30},
-            {"joint": 1, "variable": "q[1]", "eta2": 0.5, "p": 1e-30},  # its own angle: not this kind
-            {"joint": 0, "variable": "qd[1]", "eta2": 0.5, "p": 1e-30},  # a velocity: not this kind
-            {"joint": 0, "variable": "q[2]", "eta2": 0.1, "p": 0.004}]  # above 0.01 / 6
+    # rows: "joint" the 0-based index, "variable" the signal named from 1 (q1 = index 0's angle)
+    rows = [{"joint": 2, "variable": "q1", "eta2": 0.4, "p": 1e-30},
+            {"joint": 1, "variable": "q2", "eta2": 0.5, "p": 1e-30},  # its own angle: not this kind
+            {"joint": 0, "variable": "qd2", "eta2": 0.5, "p": 1e-30},  # a velocity: not this kind
+            {"joint": 0, "variable": "q3", "eta2": 0.1, "p": 0.004}]  # above 0.01 / 6
     got = configuration_dependence(rows, 3, alpha=0.01)
-    assert [(r["joint"], r["variable"]) for r in got] == [(2, "q[0]")]
+    assert [(r["joint"], r["variable"]) for r in got] == [(2, "q1")]
     assert all_candidates(3, kinds=["configuration_dependent"]) == []
     cands = all_candidates(3, kinds=["configuration_dependent"], diagnostics=got, robot=PUMA)
-    assert [(c.joint, c.shape["terms"]) for c in cands] == [(2, "s0,c0,s1,c1")]
+    assert [(c.joint, c.shape["terms"]) for c in cands] == [(2, "s1,c1,s2,c2")]
 
 
 def test_admissible_peak_within_the_torque_range():
-    eff = make_effect("configuration_dependent", 2, terms="s0,c0,s1,c1")
+    eff = make_effect("configuration_dependent", 2, terms="s1,c1,s2,c2")
     q = np.random.default_rng(0).uniform(-2, 2, (200, 3))
     ctx = PhysicalContext(tau_max=(50.0, 50.0, 1.0), configurations=q)
     assert eff.admissible(CABLE, ctx)  # peak ~2 N m > 1 N m
@@ -128,11 +131,11 @@ def no_cable(tmp_path_factory):
 def test_cable_on_the_elbow_is_named_with_its_coefficients(cable):
     rep = cable.report
     offered = [r for r in rep["residual"]["baseline"]["configuration_dependence"] if r["joint"] == 2]
-    assert {r["variable"] for r in offered} & {"q[0]", "q[1]"}, offered
+    assert {r["variable"] for r in offered} & {"q1", "q2"}, offered
     named = [e for e in rep["effects"] if e["kind"] == "configuration_dependent"]
     assert [e["joint"] for e in named] == [2], [e["label"] for e in rep["effects"]]
     p = named[0]["parameters"]
-    for k in ("sin(q0)", "cos(q0)", "sin(q1)", "cos(q1)"):
+    for k in ("sin(q1)", "cos(q1)", "sin(q2)", "cos(q2)"):
         assert p[k] == pytest.approx(CABLE[k], rel=0.1), (k, p)
     before, after = np.asarray(rep["baseline"]["rms_validate"]), np.asarray(rep["final"]["rms_validate"])
     assert after[2] < 0.2 * before[2], (before, after)  # the cable was ~0.9 N m RMS, noise 0.05

@@ -187,10 +187,10 @@ def test_a_file_leaving_a_joint_limit_is_refused(tmp_path):
     from robust_drake.trajectories import write_trajectory_csv
 
     t = np.linspace(0, 1, 101)
-    q = np.column_stack([np.zeros_like(t), -1.5 + 3.0 * t, np.full_like(t, 1.5)])  # joint 1 beyond 0.785
+    q = np.column_stack([np.zeros_like(t), -1.5 + 3.0 * t, np.full_like(t, 1.5)])  # joint 2 (q2) beyond 0.785
     z = np.zeros_like(q)
     path = write_trajectory_csv(tmp_path / "bad.csv", t, q, z, z)
-    with pytest.raises(RobustDrakeError, match="leaves the position limits of joint 1"):
+    with pytest.raises(RobustDrakeError, match="leaves the position limits of joint 2 "):
         build_closed_loop(ClosedLoopConfig(robot="puma560_3link", controller="pd", trajectory=path))
     (tmp_path / "cols.csv").write_text("t,q1\n0,0\n1,0\n")
     with pytest.raises(RobustDrakeError, match="needs columns t, q1..qn, qd1..qdn, qdd1..qddn"):

@@ -87,7 +87,7 @@ def test_b_a_model_truly_worse_on_one_joint_is_dropped(runs):
     (d,) = guard.dropped
     assert d["label"] == S.effect_label(effects[1]) and d["joint"] == 1
     # the reason names the joint, the change with its interval and the level
-    assert "joint(s) 1 (" in d["reason"] and "%" in d["reason"] and "[" in d["reason"] and "95%" in d["reason"]
+    assert "joint(s) 2 (" in d["reason"] and "%" in d["reason"] and "[" in d["reason"] and "95%" in d["reason"]
     first = guard.attempts[0]["tests"][1]
     assert first["worse"] and first["low"] > 0.01  # worse beyond the 1 % margin and its own spread
     assert not any(t.worse for t in guard.tests)
@@ -142,4 +142,4 @@ def test_d_report_carries_the_intervals(runs):
     assert len(rep["effects"][0]["validate_change"]) == 2
     md = (out / "report.md").read_text()
     t = ch[0]
-    assert f"joint 0 ({rep['joint_names'][0]}): {100 * t['estimate']:+.1f} % [{100 * t['low']:+.1f}, " in md
+    assert f"joint 1 ({rep['joint_names'][0]}): {100 * t['estimate']:+.1f} % [{100 * t['low']:+.1f}, " in md

@@ -73,7 +73,7 @@ def test_panda_default_sine_is_inside_the_limits_and_is_eq49_about_the_middle():
     centre[5] = (-0.0175 + 3.7525) / 2
     np.testing.assert_allclose(q, centre + 0.5 * np.sin(math.pi * t)[:, None], rtol=0, atol=1e-12)
     assert np.all(q >= FRANKA_Q_MIN) and np.all(q <= FRANKA_Q_MAX)
-    assert "joints [3, 5]" in loop.reference.params["limits"]
+    assert "joints [4, 6]" in loop.reference.params["limits"]  # numbered from 1
 
 
 def test_too_wide_sine_is_shrunk_with_a_warning(caplog, monkeypatch):
@@ -94,14 +94,14 @@ def test_too_wide_sine_is_shrunk_with_a_warning(caplog, monkeypatch):
 
 
 def test_explicit_offset_outside_the_limits_is_a_one_line_error():
-    """offset 0 is used as given, so joint 3 (joint4) leaves [-3.072, -0.0698]: the error names
+    """offset 0 is used as given, so joint 4 (joint4) leaves [-3.072, -0.0698]: the error names
     the joint, its limits and the reference's range, and the parameters that move it."""
     with pytest.raises(RobustDrakeError) as e:
         _panda_loop(offset=0.0)
     msg = str(e.value)
     assert "\n" not in msg
-    assert "joint 3 (joint4)" in msg and "[-3.072, -0.0698] rad" in msg and "[-0.5, 0.5] rad" in msg, msg
-    assert "offset" in msg and "amplitude" in msg and "also joints [5]" in msg
+    assert "joint 4 (joint4)" in msg and "[-3.072, -0.0698] rad" in msg and "[-0.5, 0.5] rad" in msg, msg
+    assert "offset" in msg and "amplitude" in msg and "also joints [6]" in msg
 
 
 def test_a_longer_run_is_checked_too():
@@ -111,7 +111,7 @@ def test_a_longer_run_is_checked_too():
     loop = ClosedLoop(ClosedLoopConfig(robot="panda", controller="pd", trajectory="step", rate=1000.0,
                                        trajectory_params={"offset": offset, "amplitude": 0.3, "t0": 1.0,
                                                           "duration": 0.5}))
-    with pytest.raises(RobustDrakeError, match=r"joint 3 \(joint4\).*over 2 s"):
+    with pytest.raises(RobustDrakeError, match=r"joint 4 \(joint4\).*over 2 s"):
         loop.simulate(2.0)
 
 
@@ -120,7 +120,7 @@ def test_check_within_limits_passes_a_reference_on_the_boundary():
     lim = JointLimits((-1.0,), (1.0,), ("j",), ("rad",))
     arm = ArmSpec("x", "x", 1, (), False, None, joint_limits=lim)
     check_within_limits(make_reference(arm, "sine", amplitude=1.0, offset=0.0), lim, 4.0, 0.125)
-    with pytest.raises(RobustDrakeError, match="joint 0 \\(j\\)"):
+    with pytest.raises(RobustDrakeError, match="joint 1 \\(j\\)"):
         check_within_limits(make_reference(arm, "sine", amplitude=1.0 + 1e-9, offset=0.0), lim, 4.0, 0.125)
 
 
@@ -132,7 +132,7 @@ def test_cli_out_of_range_reference(capsys):
     assert main(argv) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("error: reference 'sine'") and "\n" not in err and "Traceback" not in err, err
-    assert "joint 3 (joint4)" in err
+    assert "joint 4 (joint4)" in err
     assert main(argv[:-1] + ["offset"]) == 2
     assert "KEY=VALUE" in capsys.readouterr().err
     # the default: inside the limits, and the chosen offset is in the JSON
@@ -203,7 +203,7 @@ def test_identification_excitation_outside_the_limits_is_refused():
     from robust_drake.experiments.logs_to_control import excitation_for
     from robust_drake.synthetic.simulated import simulate_experiment
 
-    with pytest.raises(RobustDrakeError, match=r"excitation.*joint [35] \(joint[46]\).*'offset'"):
+    with pytest.raises(RobustDrakeError, match=r"excitation.*joint ([46]) \(joint\1\).*'offset'"):
         simulate_experiment("panda", duration=2.0, excitation=dict(amplitude=1.0, torque_limit=None),
                             coulomb=0.1, viscous=0.01)
     exc = excitation_for("panda")

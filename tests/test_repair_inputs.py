@@ -209,9 +209,9 @@ def test_joint_within_one_encoder_count_is_reported_unidentifiable(sim, tmp_path
     status, _, err = _repair(capsys, f, "--robot", ROBOT, "--validate", v, "--out", out, *QUICK)
     assert status == 0
     rep = json.load(open(out / "report.json"))
-    # joints numbered from 0 with the URDF's name (the CSV's q2 is joint 1)
+    # joints numbered from 1 with the URDF's name (the CSV's q2 is joint 2)
     name = rep["joint_names"][1]
-    assert re.search(rf"warning: joint 1 \({re.escape(name)}\) moves within 1 encoder count", err), err
+    assert re.search(rf"warning: joint 2 \({re.escape(name)}\) moves within 1 encoder count", err), err
     assert rep["identifiability"]["unidentifiable_joints"] == [1]
     assert "unidentifiable: none" not in open(out / "report.md").read()
     # the untouched log is not flagged: its joints move thousands of counts
@@ -342,8 +342,8 @@ def test_unpowered_joint_warning_reaches_the_console(sim, tmp_path, capsys):
     out = tmp_path / "rep"
     status, _, err = _repair(capsys, f, "--robot", ROBOT, "--validate", val, "--out", out, *QUICK)
     assert status == 0
-    assert "warning: f.csv: torque column tau2 is constant (0 N m): joint 1 treated as unpowered" in err.splitlines()
-    assert "f.csv: torque column tau2 is constant (0 N m): joint 1 treated as unpowered" in json.load(
+    assert "warning: f.csv: torque column tau2 is constant (0 N m): joint 2 treated as unpowered" in err.splitlines()
+    assert "f.csv: torque column tau2 is constant (0 N m): joint 2 treated as unpowered" in json.load(
         open(out / "report.json"))["warnings"]
 
 

@@ -103,4 +103,4 @@ def test_backlash_on_the_siciliano_elbow_is_flagged(siciliano_backlash):
     rows = [w for w in rep["unexplained_where"] if w["test"] == "reversal"]
     assert rep["unexplained_structure"] and [w["joint"] for w in rows] == [truth["joint"]]
     assert rows[0]["eta2"] >= D.REVERSAL_SHARE
-    assert "tau[1] reversals" in md and "unexplained_structure: true" in md
+    assert "tau2 reversals" in md and "unexplained_structure: true" in md

@@ -192,10 +192,10 @@ def test_next_ranked_candidate_is_tried_when_the_winner_fails(monkeypatch):
     monkeypatch.setattr(SEL, "_judge", fail_first)
     sel = SEL.forward_select(cache, cands, min_gain=0.01, max_effects=1)
     first, second = sel.steps[0], sel.steps[1]
-    assert (first.label, first.rank, first.attempt, first.accepted) == ("torque_offset[0]", 1, 1, False)
+    assert (first.label, first.rank, first.attempt, first.accepted) == ("torque_offset[1]", 1, 1, False)
     assert second.accepted and second.rank >= 2 and second.attempt == 2 and second.step == first.step + 1
     assert [(e.kind, e.joint) for e in sel.chosen] == [("spring", 1)]
-    assert calls == ["torque_offset[0]", "spring[1]"]
+    assert calls == ["torque_offset[1]", "spring[2]"]
     alpha = (1 - LEVEL) / 2
     assert second.alpha == pytest.approx(alpha / (2 * SEL.NEXT_TRIES))  # the guard's share of a next try
     assert sum(sel.rows["alpha_per_try"]) == pytest.approx(alpha)  # all tries of a step share the level

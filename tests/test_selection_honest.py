@@ -249,7 +249,7 @@ def test_negative_viscous_is_refitted_at_zero_and_said():
     ref = np.linalg.lstsq(cols[:, 0, :1], data.tau[:, 0], rcond=None)[0]
     assert fit.theta[0] == pytest.approx(ref[0], rel=1e-8)
     (w,) = friction_warnings(clamped, ["elbow"], "baseline")
-    assert "joint 0 (elbow)" in w and "viscous" in w and "fixed at 0" in w
+    assert "joint 1 (elbow)" in w and "viscous" in w and "fixed at 0" in w
     # a physical fit is left alone
     data.tau = 0.3 * cols[:, :, 0] + 0.04 * cols[:, :, 1]
     fit, _, clamped = fit_friction_bounded(_Cache(data, cols), [], np.ones(1))

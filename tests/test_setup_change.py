@@ -87,7 +87,7 @@ def test_payload_only_in_validation_is_flagged_and_no_effect_claimed(tmp_path):
     assert all(not e["claimed"] for e in rep["effects"])
     assert rep["unexplained_structure"]
     warn = [w for w in rep["warnings"] if w.startswith("setup changed")]
-    assert len(warn) == 1 and "joint 0" in warn[0] and "joint 1" in warn[0]
+    assert len(warn) == 1 and "joint 1 (" in warn[0] and "joint 2 (" in warn[0]
     assert "setup change" in open(tmp_path / "out" / "report.md").read()
 
 

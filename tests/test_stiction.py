@@ -73,6 +73,6 @@ def test_stick_is_reported_once_per_file_and_joint_by_number_and_name(tmp_path):
         D.load_companion(path, d, cutoff_hz=4.0)  # a second load at another cut-off: silent
     sticks = [str(w.message) for w in caught if "sticks" in str(w.message)]
     assert len(sticks) == 1, sticks
-    assert "joint 0 (elbow) sticks" in sticks[0] and "q1" not in sticks[0]
+    assert "joint 1 (elbow) sticks" in sticks[0] and "q1" not in sticks[0]
     msgs = D.exclusion_messages(d, D.friction_exclusion(d), ["elbow"])
-    assert len(msgs) == 1 and msgs[0].startswith("stiction: joint 0 (elbow)")
+    assert len(msgs) == 1 and msgs[0].startswith("stiction: joint 1 (elbow)")

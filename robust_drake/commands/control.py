@@ -99,7 +99,7 @@ def print_draws(out: dict) -> None:
     print(format_table(rows, ["draw", "where", "radius", "bound [rad]", "max |e| [rad]", "bound / |e|",
                               "every joint within"]))
     worst = [max(d["bound_per_joint"][j] for d in out["draws"]) for j in range(len(out["K"]))]
-    print("per-joint bound [rad] (largest over the draws): " + ", ".join(f"joint {j} {b:.4g}" for j, b in enumerate(worst)))
+    print("per-joint bound [rad] (largest over the draws): " + ", ".join(f"joint {j + 1} {b:.4g}" for j, b in enumerate(worst)))
     print(f"PD (same K, Lambda) max |e| after the transient: {out['pd_max_error']:.4g} rad")
 
 

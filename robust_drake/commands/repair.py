@@ -22,6 +22,7 @@ import os
 import sys
 
 from robust_drake.cli import add_output_flags, format_table, non_negative, print_json
+from robust_drake.joints import joint_text
 
 
 def register(subparsers) -> None:
@@ -116,16 +117,16 @@ def run(args) -> int:
     n = len(rep["baseline"]["rms_fit"])
     rows = [["baseline", *rep["baseline"]["rms_fit"], *rep["baseline"]["rms_validate"]]]
     for e in rep["effects"]:
-        rows.append([f"+ {e['kind']}[{'all' if e['joint'] is None else e['joint']}]", *([""] * n), *e["rms_validate_after"]])
+        rows.append([f"+ {e['kind']}[{'all' if e['joint'] is None else e['joint'] + 1}]", *([""] * n), *e["rms_validate_after"]])
     rows.append(["repaired", *rep["final"]["rms_fit"], *rep["final"]["rms_validate"]])
-    header = ["model", *[f"fit j{j}" for j in range(n)], *[f"val j{j}" for j in range(n)]]
+    header = ["model", *[f"fit j{j + 1}" for j in range(n)], *[f"val j{j + 1}" for j in range(n)]]  # joints from 1
     print(f"robot {rep['robot']}, {rep['samples']} fit samples, RMS torque residual [N m]:")
     print(format_table(rows, header))
     print(f"verdict: {rep['verdict']} ({rep['verdict_reason']})")
     for d in rep.get("rejected_effects") or []:
         print(f"  dropped {d['label']}: {d['reason']}")
     print(f"unexplained_structure: {str(rep['unexplained_structure']).lower()}"
-          + (f" ({', '.join(signal(w['variable']) + ' on joint ' + str(w['joint']) for w in rep['unexplained_where'])})"
+          + (f" ({', '.join(signal(w['variable']) + ' on ' + joint_text(w['joint'], rep.get('joint_names')) for w in rep['unexplained_where'])})"
              if rep["unexplained_structure"] else ""))
     est = rep.get("estimator") or {}
     if est.get("hausman"):

@@ -185,6 +185,10 @@ class Effect:
     parameters). Per-joint kinds given ``joint=None`` act on every joint with separate
     coefficients; ``shared`` kinds (one physical quantity for the whole arm, e.g. a delay) use one
     coefficient for all joints when ``joint`` is None.
+
+    ``joint`` is a 0-based index into the arm's joints (as numpy's, ``q[:, joint]``); the label
+    :attr:`name` numbers joints from 1 like every report, message and CSV column:
+    ``Spring(joint=5).name == "spring[6]"``, the spring on joint 6 (``q6``).
     """
 
     kind: ClassVar[str] = ""
@@ -210,7 +214,7 @@ class Effect:
     # -- identity ------------------------------------------------------------------------------
     @property
     def name(self) -> str:
-        j = "all" if self.joint is None else str(self.joint)
+        j = "all" if self.joint is None else str(self.joint + 1)  # labels number joints from 1 (README)
         sh = ",".join(f"{k}={_fmt(v)}" for k, v in self.shape.items() if k != "robot")
         return f"{self.kind}[{j}]" + (f"({sh})" if sh else "")
 
@@ -221,7 +225,7 @@ class Effect:
         if self.joint is None:
             return list(range(n))
         if not 0 <= self.joint < n:
-            raise RobustDrakeError(f"effect {self.kind}: joint {self.joint} out of range for {n} joints")
+            raise RobustDrakeError(f"effect {self.kind}: joint index {self.joint} (0-based) out of range for {n} joints")
         return [self.joint]
 
     def num_coef(self, n: int) -> int:
@@ -342,7 +346,7 @@ class EffectForceBlock(LeafSystem):
         super().__init__()
         self.effect, self.n = effect, n
         self.coef = np.asarray(coef, dtype=float).copy()
-        self.set_name(f"effect_{effect.kind}_{'all' if effect.joint is None else effect.joint}")
+        self.set_name(f"effect_{effect.kind}_{'all' if effect.joint is None else effect.joint + 1}")
         self._state = self.DeclareVectorInputPort("state", 2 * n)
         self._tau = self.DeclareVectorInputPort("tau", n) if effect.needs_tau else None
         self.DeclareVectorOutputPort("generalized_force", n, self._calc)
@@ -567,7 +571,7 @@ class RotorInertia(Effect):
                 if a.joint().num_velocities() == 1 and a.joint().velocity_start() == j:
                     act = a
             if act is None:
-                raise RobustDrakeError(f"rotor_inertia: joint {j} has no actuator; use apply_to_plant "
+                raise RobustDrakeError(f"rotor_inertia: joint {j + 1} has no actuator; use apply_to_plant "
                                        "(load_plant(robot, effects)) before Finalize instead")
             G = act.gear_ratio(context)
             act.SetRotorInertia(context, act.rotor_inertia(context) + float(Ir) / (G * G))
@@ -930,7 +934,7 @@ class PreslidingFrictionBlock(LeafSystem):
         self.Fd[js] = np.asarray(coef, dtype=float).reshape(-1)  # one F_d per acting joint
         self.active = np.zeros(n)
         self.active[js] = 1.0
-        self.set_name(f"effect_presliding_friction_{'all' if effect.joint is None else effect.joint}")
+        self.set_name(f"effect_presliding_friction_{'all' if effect.joint is None else effect.joint + 1}")
         self._state = self.DeclareVectorInputPort("state", 2 * n)
         self.DeclareContinuousState(n)
         self.DeclareVectorOutputPort("generalized_force", n, self._calc,
@@ -993,7 +997,7 @@ class TimeEffectBlock(LeafSystem):
         super().__init__()
         self.effect, self.n = effect, n
         self.coef = np.asarray(coef, dtype=float).copy()
-        self.set_name(f"effect_{effect.kind}_{'all' if effect.joint is None else effect.joint}")
+        self.set_name(f"effect_{effect.kind}_{'all' if effect.joint is None else effect.joint + 1}")
         self._state = self.DeclareVectorInputPort("state", 2 * n)
         self.DeclareVectorOutputPort("generalized_force", n, self._calc)
 
@@ -1135,12 +1139,20 @@ class FrictionDrift(TimeEffect):
 # ---------------------------------------------------------------------------------------------
 # Torques that depend on other joints' angles (issue 21)
 # ---------------------------------------------------------------------------------------------
-#: term token -> label of its column; k is a joint index from 0 (tokens: "s2" = sin q_2)
+#: term letter -> label; ``{k}`` is the joint NUMBER from 1 (``sin(q1)``: the first joint, as the
+#: CSV column ``q1``); the parsed tuples (:func:`parse_terms`) hold 0-based indices
 _TERM_LABELS = {"s": "sin(q{k})", "c": "cos(q{k})", "l": "q{k}", "p": "q{k}^2"}
 
 
+def term_tokens(terms: list[tuple[str, int]]) -> str:
+    """Parsed terms (0-based joint indices) as the token text (``"s1,c1"``, joints from 1)."""
+    return ",".join(f"{f}{k + 1}" for f, k in terms)
+
+
 def configuration_terms(n: int, joint: int, prismatic=()) -> list[str]:
-    """The default basis of :class:`ConfigurationDependent` on ``joint`` of an n-joint arm:
+    """The default basis of :class:`ConfigurationDependent` on ``joint`` (0-based index) of an
+    n-joint arm, as tokens whose number is the joint NUMBER from 1 (``s1`` = sin of the first
+    joint's angle, the CSV column ``q1``):
     for every other revolute joint k, ``s<k>`` = sin q_k and ``c<k>`` = cos q_k [1]; for a
     prismatic joint k, ``l<k>`` = q_k [m] and ``p<k>`` = q_k^2 [m^2] (its own prismatic joint:
     only ``p<j>``, q_j is the ``spring`` kind). Own revolute angle left out: sin q_j, cos q_j
@@ -1149,22 +1161,23 @@ def configuration_terms(n: int, joint: int, prismatic=()) -> list[str]:
     out = []
     for k in range(n):
         if k in prismatic:
-            out += ([] if k == joint else [f"l{k}"]) + [f"p{k}"]
+            out += ([] if k == joint else [f"l{k + 1}"]) + [f"p{k + 1}"]
         elif k != joint:
-            out += [f"s{k}", f"c{k}"]
+            out += [f"s{k + 1}", f"c{k + 1}"]
     return out
 
 
 def parse_terms(terms) -> list[tuple[str, int]]:
-    """[(function letter, joint)] of a term list ``"s0,c0,l2"`` (or a list of tokens)."""
+    """[(function letter, 0-based joint index)] of a term list ``"s1,c1,l3"`` (or a list of
+    tokens) whose numbers are joint numbers from 1 (``s1`` = sin q1, the first joint)."""
     tokens = [t.strip() for t in (terms.split(",") if isinstance(terms, str) else terms) if str(t).strip()]
     out = []
     for t in tokens:
         f, k = t[:1], t[1:]
-        if f not in _TERM_LABELS or not k.isdigit():
+        if f not in _TERM_LABELS or not k.isdigit() or int(k) < 1:
             raise RobustDrakeError(f"configuration_dependent: bad term {t!r}: use s<k> (sin q_k), c<k> "
-                                   "(cos q_k), l<k> (q_k) or p<k> (q_k^2), k a joint from 0")
-        out.append((f, int(k)))
+                                   "(cos q_k), l<k> (q_k) or p<k> (q_k^2), k a joint number from 1")
+        out.append((f, int(k) - 1))
     if not out:
         raise RobustDrakeError("configuration_dependent: no terms")
     return out
@@ -1174,7 +1187,7 @@ def term_values(terms: list[tuple[str, int]], q) -> np.ndarray:
     """Pure: the basis functions phi_i(q) (N, m) of parsed ``terms`` at configurations q (N, n)."""
     q = np.atleast_2d(np.asarray(q, dtype=float))
     if max(k for _, k in terms) >= q.shape[1]:
-        raise RobustDrakeError(f"configuration_dependent: a term names joint {max(k for _, k in terms)} "
+        raise RobustDrakeError(f"configuration_dependent: a term names joint {max(k for _, k in terms) + 1} "
                                f"of a {q.shape[1]}-joint arm")
     fun = {"s": np.sin, "c": np.cos, "l": lambda x: x, "p": np.square}
     return np.stack([fun[f](q[:, k]) for f, k in terms], axis=1)
@@ -1200,9 +1213,10 @@ class ConfigurationDependent(Effect):
     (``spring``) left out it has 2 (n - 1) columns -- 4 on a 3-joint arm, 12 on a 7-joint one;
     products q_k q_l would give n^2 columns for the few hundred independent samples of a log.
 
-    Shape ``terms``: the basis as tokens (``"s0,c0,s1,c1"``: sin q_0, cos q_0, ...); None is
+    Shape ``terms``: the basis as tokens numbered from 1 like the joints in every label
+    (``"s1,c1,s2,c2"``: sin q1, cos q1, ... of the first two joints); None is
     :func:`configuration_terms` of the arm. ``joint=None`` (the excitation designer's
-    ``--for-effects``): the default basis on every joint, separate coefficients ``"j<j>:sin(q0)"``.
+    ``--for-effects``): the default basis on every joint, separate coefficients ``"j<j>:sin(q1)"`` (j the joint number from 1).
     :meth:`candidates` drops every term that lies in the
     span of the rigid-body gravity columns of joint j (:func:`gravity_aliases`), so the
     candidate never duplicates gravity: on a serial arm joint j's gravity torque depends on its
@@ -1212,7 +1226,7 @@ class ConfigurationDependent(Effect):
     is not an exact alias but nearly collinear on the data is rejected by the fit's
     identifiability check (``selection._trial``).
 
-    Parameters (:meth:`parameters`): each coefficient by its term (``"sin(q0)"``: c [N m]),
+    Parameters (:meth:`parameters`): each coefficient by its term (``"sin(q1)"``: c [N m]),
     ``terms``, and over the configurations of the data the columns were first built on (the fit
     data in the repair) ``explained_rms`` = RMS_t |f_e,j(q(t))| and ``peak`` = max_t |f_e,j|
     [N m]. Admissible: the peak over the data within the joint's torque range (max |tau_j|).
@@ -1227,7 +1241,7 @@ class ConfigurationDependent(Effect):
             if self.joint is None:
                 raise RobustDrakeError("configuration_dependent: terms need a joint (joint=None takes the "
                                        "default basis on every joint)")
-            self.shape["terms"] = ",".join(f"{f}{k}" for f, k in parse_terms(self.shape["terms"]))
+            self.shape["terms"] = term_tokens(parse_terms(self.shape["terms"]))
             if any(f in "sc" and k == self.joint for f, k in parse_terms(self.shape["terms"])):
                 raise RobustDrakeError("configuration_dependent: sin / cos of the joint's own angle are the "
                                        "position_dependent kind (harmonic 1), not a term of this one")
@@ -1247,16 +1261,16 @@ class ConfigurationDependent(Effect):
         return [(self.joint, self.terms(n))]
 
     def term_labels(self, n: int) -> list[str]:
-        """Coefficient names: the term's label (``"sin(q0)"``), ``"j<j>:"`` before it with joint=None."""
-        pre = (lambda j: f"j{j}:") if self.joint is None else (lambda j: "")
-        return [pre(j) + _TERM_LABELS[f].format(k=k) for j, ts in self.layout(n) for f, k in ts]
+        """Coefficient names: the term's label (``"sin(q1)"``), ``"j<j>:"`` (from 1) before it with joint=None."""
+        pre = (lambda j: f"j{j + 1}:") if self.joint is None else (lambda j: "")
+        return [pre(j) + _TERM_LABELS[f].format(k=k + 1) for j, ts in self.layout(n) for f, k in ts]
 
     def num_coef(self, n: int) -> int:
         return sum(len(ts) for _, ts in self.layout(n))
 
     def column_names(self, n: int) -> list[str]:
         labels = iter(self.term_labels(n))
-        return [f"{self.kind}[{j}]:{next(labels).split(':')[-1]}" for j, ts in self.layout(n) for _ in ts]
+        return [f"{self.kind}[{j + 1}]:{next(labels).split(':')[-1]}" for j, ts in self.layout(n) for _ in ts]
 
     def evaluate_columns(self, q, qd=None, qdd=None, tau=None, taud=None) -> np.ndarray:
         """(N, n, m) columns: phi(q) (eq. CD1) on joint j's rows, zero elsewhere."""
@@ -1295,7 +1309,7 @@ class ConfigurationDependent(Effect):
             raise RobustDrakeError(f"{self.name}: expected {len(labels)} coefficients, got {len(coef)}")
         out = {lab: float(c) for lab, c in zip(labels, coef)}
         if self.joint is not None:
-            out["terms"] = ",".join(f"{f}{k}" for f, k in self.terms(n))
+            out["terms"] = term_tokens(self.terms(n))
         q = self.reference_q if q is None else q
         if q is not None and np.atleast_2d(q).shape[1] == n:
             f = self.torque(coef, q)[:, [j for j, _ in self.layout(n)]]
@@ -1408,7 +1422,7 @@ class ConfigurationDependentBlock(LeafSystem):
         fun = {"s": math.sin, "c": math.cos, "l": float, "p": lambda x: x * x}
         terms = [(j, fun[f], k) for j, ts in effect.layout(n) for f, k in ts]
         self._fun = [(j, f, k, float(c)) for (j, f, k), c in zip(terms, self.coef)]
-        self.set_name(f"effect_{effect.kind}_{'all' if effect.joint is None else effect.joint}")
+        self.set_name(f"effect_{effect.kind}_{'all' if effect.joint is None else effect.joint + 1}")
         self._state = self.DeclareVectorInputPort("state", 2 * n)
         self.DeclareVectorOutputPort("generalized_force", n, self._calc,
                                      prerequisites_of_calc={self.input_port_ticket(self._state.get_index())})
@@ -1451,7 +1465,8 @@ DIAGNOSTIC_KINDS = ("periodic_disturbance", "dead_zone", "friction_drift", "conf
 
 
 def make_effect(kind: str, joint: int | None = None, **shape) -> Effect:
-    """An effect instance by kind name (RobustDrakeError listing the kinds if unknown)."""
+    """An effect instance by kind name (RobustDrakeError listing the kinds if unknown); ``joint``
+    is the 0-based joint index (``make_effect("spring", 1).name == "spring[2]"``)."""
     try:
         cls = EFFECTS[kind]
     except KeyError:

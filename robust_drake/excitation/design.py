@@ -278,7 +278,7 @@ def _problem(cfg: ExcitationConfig, plant, desc) -> _Problem:
     bad = np.flatnonzero((q0 < q_lo) | (q0 > q_hi))
     if bad.size:
         j = int(bad[0])
-        raise RobustDrakeError(f"start pose of joint {j} ({lim.names[j]}) = {q0[j]:.4g} rad lies outside "
+        raise RobustDrakeError(f"start pose of joint {j + 1} ({lim.names[j]}) = {q0[j]:.4g} rad lies outside "
                                f"[{q_lo[j]:.4g}, {q_hi[j]:.4g}] rad (its limits less the {m:.0%} margin)")
     v_urdf = np.asarray(plant.GetVelocityUpperLimits(), float)
     v_max = _vector(cfg.velocity_limits, n, "velocity_limits")

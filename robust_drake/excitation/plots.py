@@ -9,7 +9,7 @@ import numpy as np
 
 def excitation_figure(res):
     """One period of the motion: positions with the position box, velocities, accelerations
-    and model torques as fractions of their limits, one line per joint (0-based, URDF names)."""
+    and model torques as fractions of their limits, one line per joint (numbered from 1, URDF names)."""
     from robust_drake.plotting import subplots
 
     traj, rep = res.trajectory, res.report
@@ -21,7 +21,7 @@ def excitation_figure(res):
     fig, axes = subplots(4, 1, figsize=(9, 9.5), sharex=True)
     lo, hi = np.asarray(lim["position"]["lower"]), np.asarray(lim["position"]["upper"])
     for j, name in enumerate(res.joint_names):
-        line, = axes[0].plot(t, q[:, j], lw=1.1, label=f"{j} {name}")
+        line, = axes[0].plot(t, q[:, j], lw=1.1, label=f"{j + 1} {name}")
         axes[0].axhline(lo[j], color=line.get_color(), ls=":", lw=0.7)
         axes[0].axhline(hi[j], color=line.get_color(), ls=":", lw=0.7)
     axes[0].set_ylabel("q [rad]\n(dotted: allowed box)")

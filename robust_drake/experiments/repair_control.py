@@ -164,7 +164,7 @@ def run(out_dir, duration=12.0, track_duration=None, trajectories=("cpt", "circl
         progress(f"  warning: {w}")
     for e in rep["effects"]:
         shown = ", ".join(f"{k} = {v:.3g}" for k, v in e["parameters"].items() if isinstance(v, float))
-        where = "all joints" if e["joint"] is None else f"joint {e['joint']} ({rep['joint_names'][e['joint']]})"
+        where = "all joints" if e["joint"] is None else f"joint {e['joint'] + 1} ({rep['joint_names'][e['joint']]})"
         progress(f"  added {e['kind']} on {where}: {shown}")
     if rep.get("unexplained_structure"):
         progress(f"  residual still has structure no candidate explains: {rep.get('unexplained_where')}")

@@ -199,7 +199,7 @@ def derivative_consistency(qd: np.ndarray, qdd: np.ndarray, cutoff_hz: float | N
         bound = 2 * math.pi * fb * rv[j]
         if ra[j] > bound and ra[j] > 0:
             msgs.append(
-                f"{name}: joint {j} (q{j + 1}) RMS acceleration {ra[j]:.3g} rad/s^2 exceeds what "
+                f"{name}: joint {j + 1} (q{j + 1}) RMS acceleration {ra[j]:.3g} rad/s^2 exceeds what "
                 f"the motion allows (2 pi x {fb:.3g} Hz x RMS velocity {rv[j]:.3g} = {bound:.3g}): "
                 "derivatives are not consistent with the positions (time stamps? logged velocities?)")
     return msgs

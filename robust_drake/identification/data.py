@@ -638,14 +638,14 @@ def velocity_unit_warnings(raw) -> list[str]:
         slope = float(dq[:, j] @ raw.qd[:, j]) / den
         if not 1.0 / VELOCITY_SLOPE_TOL <= slope <= VELOCITY_SLOPE_TOL:
             hint = " (positions in degrees, velocities in rad/s?)" if 40 < slope < 80 else ""
-            out.append(f"{os.path.basename(raw.source)}: joint {j}: d({column_name(raw, 'q', j)})/dt is "
+            out.append(f"{os.path.basename(raw.source)}: joint {j + 1}: d({column_name(raw, 'q', j)})/dt is "
                        f"{slope:.3g} x the logged velocity {column_name(raw, 'qd', j)}{hint}")
     return out
 
 
 def column_name(raw: RawData, kind: str, j: int) -> str:
     """The file's name of joint ``j``'s (0-based) ``kind`` column ("q", "qd", "tau"): e.g. ``q2`` or
-    ``pos_meas2`` (the file's own 1-based names, quoted as such next to the 0-based joint)."""
+    ``pos_meas2`` (the file's own names, quoted beside the joint number from 1)."""
     names = raw.columns.get(kind) or []
     return names[j] if j < len(names) else f"{kind}{j + 1}"
 
@@ -670,7 +670,7 @@ def validate_raw(raw: RawData, n_joints: int | None = None, allow_degrees: bool 
     span = np.ptp(raw.q, axis=0)
     for i in range(raw.n):
         if span[i] == 0.0:
-            raise DataError(f"{src}: position column {column_name(raw, 'q', i)} (joint {i}) is constant; the joint "
+            raise DataError(f"{src}: position column {column_name(raw, 'q', i)} (joint {i + 1}) is constant; the joint "
                             "never moved (wrong column?)")
     tau_span = np.ptp(raw.tau, axis=0)
     if np.all(tau_span == 0.0):
@@ -679,7 +679,7 @@ def validate_raw(raw: RawData, n_joints: int | None = None, allow_degrees: bool 
         if tau_span[i] == 0.0:
             warns.append(
                 f"{os.path.basename(src)}: torque column {column_name(raw, 'tau', i)} "
-                f"is constant ({raw.tau[0, i]:g} N m): joint {i} treated as unpowered"
+                f"is constant ({raw.tau[0, i]:g} N m): joint {i + 1} treated as unpowered"
             )
     counts = position_counts(raw.q)
     warns = list(getattr(raw, "notes", None) or []) + warns
@@ -687,7 +687,7 @@ def validate_raw(raw: RawData, n_joints: int | None = None, allow_degrees: bool 
     peak = np.abs(raw.q).max(axis=0)
     if not allow_degrees and (peak > DEGREE_THRESHOLD_RAD).any():
         i = int(np.argmax(peak))
-        raise DataError(f"{src}: |{column_name(raw, 'q', i)}| (joint {i}) reaches {peak[i]:.4g}, more than two turns: "
+        raise DataError(f"{src}: |{column_name(raw, 'q', i)}| (joint {i + 1}) reaches {peak[i]:.4g}, more than two turns: "
                         + position_unit_cause(raw.q[:, i]))
     return {"dt": float(np.mean(dt)), "jitter": jitter, "max_dt": float(dt.max()), "warnings": warns,
             "counts": counts}
@@ -848,11 +848,11 @@ def _split_at_jumps(r: RawData, pieces: list[slice]) -> tuple[list[slice], list[
         if C.is_wrap(step):
             turns = int(round(step / (2 * np.pi)))
             r.q[k + 1:, j] -= 2 * np.pi * turns
-            msgs.append(f"{name}: {col} (joint {j}) jumps by {step:.4g} rad ({turns:+d} turn(s)) {where}: a wrapped "
+            msgs.append(f"{name}: {col} (joint {j + 1}) jumps by {step:.4g} rad ({turns:+d} turn(s)) {where}: a wrapped "
                         "angle; unwrapped (the positions after it shifted by a whole number of turns)")
         else:
             cuts.add(k + 1)
-            msgs.append(f"{name}: {col} (joint {j}) jumps by {step:.4g} rad in one step {where} ({z:.0f} x the spread "
+            msgs.append(f"{name}: {col} (joint {j + 1}) jumps by {step:.4g} rad in one step {where} ({z:.0f} x the spread "
                         "of its step changes; no motion of this log makes that step): two logs joined, or an encoder "
                         "glitch? the file is split into segments there")
     if not cuts:
@@ -912,19 +912,19 @@ def exclusion_messages(data: "IdentData", exclude: np.ndarray | None, joint_name
     """One line per joint with rows left out by :func:`friction_exclusion` (for report warnings)."""
     if exclude is None:
         return []
-    names = list(joint_names) if joint_names is not None else [f"joint{j}" for j in range(data.n)]
+    names = list(joint_names) if joint_names is not None else [f"joint{j + 1}" for j in range(data.n)]
     settle = filter_settling_s(data.dt, data.filter.cutoff_hz if data.filter.derivatives != "given" else None,
                                data.filter.order or 1)
-    return [f"stiction: joint {j} ({names[j]}) sticks on {data.stuck[:, j].mean():.1%} of the fit samples; "
+    return [f"stiction: joint {j + 1} ({names[j]}) sticks on {data.stuck[:, j].mean():.1%} of the fit samples; "
             f"those rows and {settle:.2g} s of filter settling on either side ({exclude[:, j].mean():.1%} of "
-            f"joint {j}'s rows) are left out of joint {j}'s equation in every fit and held-out score "
+            f"joint {j + 1}'s rows) are left out of joint {j + 1}'s equation in every fit and held-out score "
             "(friction there is not a function of velocity)"
             for j in range(data.n) if exclude[:, j].any()]
 
 
 def _stick_messages(segs: list["IdentData"], name: str, joint_names=None) -> list[str]:
     """One message per joint stuck on more than STICK_WARN_FRAC of one file's samples (joints
-    from 0, with the URDF's names when given)."""
+    numbered from 1, with the URDF's names when given)."""
     from robust_drake.identification import conditioning as C
 
     stuck = np.concatenate([sg.stuck for sg in segs])
@@ -932,7 +932,7 @@ def _stick_messages(segs: list["IdentData"], name: str, joint_names=None) -> lis
     for j, f in enumerate(stuck.mean(0)):
         if f > C.STICK_WARN_FRAC:
             msgs.append(
-                f"{name}: joint {j}{'' if joint_names is None else f' ({joint_names[j]})'} sticks on {f:.0%} of the samples (speed < {C.STICK_SPEED:g} "
+                f"{name}: joint {j + 1}{'' if joint_names is None else f' ({joint_names[j]})'} sticks on {f:.0%} of the samples (speed < {C.STICK_SPEED:g} "
                 f"rad/s for >= {C.STICK_MIN_S:g} s while its torque changes): friction there is not a "
                 "function of velocity; those rows are marked (IdentData.stuck)")
     return msgs

@@ -41,7 +41,10 @@ from robust_drake.errors import RobustDrakeError
 
 DRAKE_NS = "http://drake.mit.edu"
 SIDECAR_SUFFIX = ".identified.yaml"
-FORMAT = "robust_drake.identified_model/1"
+#: the sidecar's format; /2 numbers the configuration_dependent terms' joints from 1 (model.MODEL_VERSION),
+#: /1 sidecars (from 0) are read and renumbered
+FORMAT = "robust_drake.identified_model/2"
+FORMAT_V1 = "robust_drake.identified_model/1"
 #: relative round-off allowed in the validity checks of an exported body (eigenvalues of I_c,
 #: triangle inequality), relative to the body's largest principal moment
 VALIDITY_RTOL = 1e-9
@@ -275,7 +278,7 @@ def _write_friction(joints, cm, src):
         fv, fc = float(cm.viscous[j]), float(cm.coulomb[j])
         damping[j] = max(fv, 0.0)
         if fv < 0 or fc < 0:
-            notes.append(f"joint {j} ({jn}): fitted {'viscous' if fv < 0 else 'Coulomb'} level "
+            notes.append(f"joint {j + 1} ({jn}): fitted {'viscous' if fv < 0 else 'Coulomb'} level "
                          f"{fv if fv < 0 else fc:.4g} < 0 written as 0 in the URDF (kept in the sidecar)")
         for old in joints[jn].findall("dynamics"):
             joints[jn].remove(old)
@@ -324,7 +327,7 @@ def read_export(path) -> dict:
         raise RobustDrakeError(f"{urdf} has no sidecar {os.path.basename(side_path)} (not written by "
                                "IdentifiedModel.to_urdf / repair --export-urdf)")
     side = yaml.safe_load(open(side_path))
-    if not isinstance(side, dict) or side.get("format") != FORMAT:
+    if not isinstance(side, dict) or side.get("format") not in (FORMAT, FORMAT_V1):
         raise RobustDrakeError(f"{side_path} is not an identified-model sidecar ({FORMAT})")
     urdf = os.path.abspath(urdf)
     # the library's regressor of a URDF (load_regressor) drops <dynamics damping> columns and fits
@@ -338,4 +341,5 @@ def read_export(path) -> dict:
             "friction": {"coulomb": [float(x) for x in fr["coulomb"]], "viscous": viscous.tolist()},
             "effects": [{"kind": e["kind"], "joint": e["joint"], "parameters": dict(e["parameters"]),
                          "coefficients": list(e["coefficients"])} for e in side.get("effects") or []],
-            "estimator": str(side.get("estimator", "exported")), "data": dict(side.get("data") or {})}
+            "estimator": str(side.get("estimator", "exported")), "data": dict(side.get("data") or {}),
+            "version": 1 if side["format"] == FORMAT_V1 else 2}

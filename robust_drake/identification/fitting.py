@@ -41,7 +41,7 @@ def effect_label(effect) -> str:
     shape = getattr(effect, "shape", None)
     if shape:
         extra = "(" + ", ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in shape.items()) + ")"
-    return f"{effect.kind}" + (f"[joint {j}]" if j is not None else "") + extra
+    return f"{effect.kind}" + (f"[{j + 1}]" if j is not None else "") + extra  # joints from 1, as Effect.name
 
 
 def row_runs(rows, N: int) -> list[slice] | None:

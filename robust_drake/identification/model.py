@@ -12,11 +12,13 @@ Convention (the repair's, ``fitting.py``): the measured joint torque [N m] is
 with ``Y_b`` the base-parameter regressor (``regressor.py``), ``fc``/``fv`` Coulomb [N m] and
 viscous [N m s/rad] friction per joint and ``Phi_k c_k`` the chosen effects' columns
 (``effects.py``). An effect block's generalized force on the plant is ``-(Phi_k c_k)``.
-Joints are indexed from 0 in the URDF's order; ``joint_names`` are the URDF's names.
+Joints are indexed from 0 in the URDF's order in Python (``effects[k].joint``, arrays) and the
+model file; every text numbers them from 1 (README); ``joint_names`` are the URDF's names.
 """
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -115,6 +117,7 @@ class IdentifiedModel:
                          "coefficients": [float(c) for c in e.coefficients]} for e in self.effects],
             "estimator": self.estimator, "data": dict(self.data),
             **({"consistent": self.consistent} if self.consistent is not None else {}),
+            "version": MODEL_VERSION,
         }
 
     @classmethod
@@ -131,7 +134,7 @@ class IdentifiedModel:
                            [[np.nan if x is None else x for x in row] for row in cov], float),
                        coulomb=np.asarray(d["friction"]["coulomb"], float),
                        viscous=np.asarray(d["friction"]["viscous"], float),
-                       effects=[IdentifiedEffect(e["kind"], e["joint"], dict(e["parameters"]),
+                       effects=[IdentifiedEffect(e["kind"], e["joint"], upgrade_parameters(e, d.get("version", 1)),
                                                  list(e["coefficients"])) for e in d.get("effects", [])],
                        estimator=d.get("estimator", "least_squares"), data=dict(d.get("data") or {}),
                        consistent=d.get("consistent"))
@@ -543,6 +546,39 @@ class ModelFormat:
 
 
 MODEL_FILE_TAG = "robust_drake.identified_model"
+#: version of the model dict (model files, report.json's "model"): 2 numbers the joints of the
+#: configuration_dependent terms from 1 (``terms="s1,c1"``, coefficient ``sin(q1)``: the first
+#: joint), as every label; version 1 (files before it, reports without a version) from 0, read
+#: by :func:`upgrade_parameters`. ``effects[k].joint`` is the 0-based joint index in both.
+MODEL_VERSION = 2
+
+_V1_TERM = re.compile(r"^(?:j(\d+):)?(sin|cos)\(q(\d+)\)$|^(?:j(\d+):)?q(\d+)(\^2)?$")
+
+
+def _v1_key(key: str) -> str:
+    m = _V1_TERM.match(key)
+    if not m:
+        return key
+    if m.group(2):
+        pre = f"j{int(m.group(1)) + 1}:" if m.group(1) is not None else ""
+        return f"{pre}{m.group(2)}(q{int(m.group(3)) + 1})"
+    pre = f"j{int(m.group(4)) + 1}:" if m.group(4) is not None else ""
+    return f"{pre}q{int(m.group(5)) + 1}{m.group(6) or ''}"
+
+
+def upgrade_parameters(effect: dict, version) -> dict:
+    """An effect's stored parameters in the current numbering (:data:`MODEL_VERSION`): from a
+    version-1 dict, a configuration_dependent effect's term tokens (``"s0,c0"``) and coefficient
+    names (``sin(q0)``, ``j0:cos(q1)``) renumbered from 1; everything else as stored."""
+    params = dict(effect.get("parameters") or {})
+    if effect.get("kind") != "configuration_dependent" or not isinstance(version, int) or version >= MODEL_VERSION:
+        return params
+    out = {}
+    for k, v in params.items():
+        if k == "terms" and isinstance(v, str):
+            v = ",".join(f"{t.strip()[:1]}{int(t.strip()[1:]) + 1}" for t in v.split(",") if t.strip())
+        out[_v1_key(k)] = v
+    return out
 
 
 def _json_matches(path, saving: bool = False) -> bool:
@@ -569,7 +605,7 @@ def _json_load(path) -> IdentifiedModel:
 def _json_save(model: IdentifiedModel, path) -> None:
     import json
 
-    doc = {"format": MODEL_FILE_TAG, "version": 1, **_strict(model.to_json())}
+    doc = {"format": MODEL_FILE_TAG, **_strict(model.to_json())}  # "version": MODEL_VERSION
     try:
         with open(path, "w") as fh:
             json.dump(doc, fh, indent=2, allow_nan=False)
@@ -658,7 +694,7 @@ def _check_model_json(d) -> None:
             fail(f"effects[{k}]", "must be a dict with a kind")
         j = e.get("joint")
         if j is not None and (isinstance(j, bool) or not isinstance(j, int) or not 0 <= j < n):
-            fail(f"effects[{k}].joint", f"must be null or a joint 0..{n - 1}, got {j!r}")
+            fail(f"effects[{k}].joint", f"must be null or a 0-based joint index 0..{n - 1}, got {j!r}")
         numbers(f"effects[{k}].coefficients", e.get("coefficients"))
         if not isinstance(e.get("parameters", {}), dict):
             fail(f"effects[{k}].parameters", "must be a dict")
@@ -677,4 +713,4 @@ def joint_names_of(regressor, n: int) -> list[str]:
             names = [j.name() for j in moving]
         except Exception:  # noqa: BLE001 - a regressor without a Drake plant
             names = []
-    return names if len(names) == n else [f"j{i}" for i in range(n)]
+    return names if len(names) == n else [f"joint{i + 1}" for i in range(n)]

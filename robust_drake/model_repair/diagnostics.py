@@ -256,7 +256,7 @@ def dead_band(data, residual: np.ndarray, share: float = DEADBAND_SHARE, alpha: 
         p = float(fdist.sf(F * 1.0, 1, max(n_eff - 5, 1.0)))
         if gain >= share and p < alpha and SAT_SHARE[0] <= c <= SAT_SHARE[1]:
             out.append({"test": "dead_band", "joint": j, "threshold": d, "torque_range": [-d, d],
-                        "variable": f"tau[{j}] (dead band |tau| < {d:.3g})", "eta2": float(gain),
+                        "variable": f"tau{j + 1} (dead band |tau| < {d:.3g})", "eta2": float(gain),
                         "saturation_share": c, "variance_explained": float(gain), "p": p})
     return out
 
@@ -339,7 +339,7 @@ def reversal(data, residual: np.ndarray, alpha: float = ALPHA, label: str = "fit
             ms = 1e3 * T["width"]
             out.append({"test": "reversal", "joint": j, "data": label, "window_s": T["width"],
                         "where": f"within {ms:.0f} ms after torque reversals ({label} data)",
-                        "variable": f"tau[{j}] reversals (residual bursts within {ms:.0f} ms after, {label} data)",
+                        "variable": f"tau{j + 1} reversals (residual bursts within {ms:.0f} ms after, {label} data)",
                         "eta2": T["share"], "energy_ratio": T["ratio"], "p": T["p"],
                         "reversals": T["reversals"], "velocity_share": V["share"]})
     return out
@@ -425,7 +425,7 @@ def setup_change(e_fit: np.ndarray, rows_fit: np.ndarray, seg_fit: np.ndarray, b
 def setup_change_text(sc: dict, joint_names) -> str:
     """The warning of a flagged :func:`setup_change`: the joints, each with its RMS ratio and
     interval."""
-    parts = [f"joint {r['joint']} ({joint_names[r['joint']]}) x{r['ratio']:.2g} "
+    parts = [f"joint {r['joint'] + 1} ({joint_names[r['joint']]}) x{r['ratio']:.2g} "
              f"[{r['ratio_low']:.2g}, {r['ratio_high']:.2g}]" for r in sc["tests"] if r["worse"]]
     return ("setup changed between fit and validation: the validation RMS torque error on moving rows is above the "
             "fit run's own held-out error beyond its spread on " + ", ".join(parts)

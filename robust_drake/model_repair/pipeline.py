@@ -540,7 +540,7 @@ def run_repair(fit_paths, options: RepairOptions, validate_paths=None, out_dir=N
 def _setup_change(inp, base, log) -> dict:
     """``diagnostics.setup_change_of`` on the baseline (computed once, before any effect)."""
     sc = DG.setup_change_of(inp.cf, base.weights, base.fit.residual, inp.val, base.val_residual)
-    log("setup change between fit and validation: " + ("FLAGGED on joint(s) " + ", ".join(map(str, sc["joints"]))
+    log("setup change between fit and validation: " + ("FLAGGED on joint(s) " + ", ".join(str(j + 1) for j in sc["joints"])
                                                        if sc["flagged"] else "not flagged"))
     return sc
 
@@ -643,7 +643,8 @@ def run_repair_demo(out_dir: str, kind: str = "stribeck", seed: int = 0, progres
 
     log = progress_callback(progress)
     fit_csv, val_csv, truth = hidden_effect_case(kind, seed=seed, out_dir=out_dir)
-    log(f"simulated experiment: hidden {truth['kind']} on joint {truth['joint']} {truth['parameters']}")
+    log(f"simulated experiment: hidden {truth['kind']} on "
+        f"{'all joints' if truth['joint'] is None else 'joint ' + str(truth['joint'] + 1)} {truth['parameters']}")
     opts = RepairOptions(robot=truth["robot"], **options)
     rep = run_repair([fit_csv], opts, validate_paths=[val_csv], out_dir=out_dir, progress=log)
     attach_truth(rep, {k: v for k, v in truth.items() if k in ("kind", "joint", "parameters", "robot", "friction")}, out_dir)
@@ -651,7 +652,7 @@ def run_repair_demo(out_dir: str, kind: str = "stribeck", seed: int = 0, progres
     log(f"validation RMS torque error [N m]: baseline {fmt(rep['baseline']['rms_validate'])} -> "
         f"repaired {fmt(rep['final']['rms_validate'])}")
     for e in rep["effects"]:
-        where = "all joints" if e["joint"] is None else f"joint {e['joint']} ({rep['joint_names'][e['joint']]})"
+        where = "all joints" if e["joint"] is None else f"joint {e['joint'] + 1} ({rep['joint_names'][e['joint']]})"
         log(f"found {e['kind']} on {where}: "
             + ", ".join(f"{k} = {v:.4g}" for k, v in e["parameters"].items() if isinstance(v, float)))
     return rep

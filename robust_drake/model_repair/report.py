@@ -4,20 +4,21 @@
 JSON dictionary; :func:`render_markdown` reads only that dictionary, so the two files can never
 disagree (one statement per fact: e.g. the Hausman test's significance is
 ``estimator.hausman.significant`` in both, the estimator actually used is ``estimator.method``).
-Joints are numbered from 0 everywhere, with the URDF's joint names (``joint_names``); the
-residual's signal names (``q2``, ``qd1``, 1-based as in the CSV columns) are shown as
-``q[1]``, ``qd[0]`` in the markdown.
+Joints are numbered from 1 in every text (``joint 2 (joint2)``, effect labels ``spring[2]``,
+the residual's signal names ``q2``, ``qd1`` as the CSV columns), with the URDF's joint names
+(``joint_names``); the integer ``joint`` fields of report.json are 0-based indices into
+``joint_names`` (Python's, as ``Effect.joint``; see ``conventions`` in the report).
 """
 
 from __future__ import annotations
 
 import os
-import re
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
 
+from robust_drake.joints import joint_numbers, joint_text
 from robust_drake.model_repair import residual as R
 from robust_drake.model_repair.diagnostics import stuck_rows_split
 from robust_drake.model_repair.stages import identified_models, reference_rms
@@ -97,7 +98,7 @@ def verdict(res: RepairResult) -> dict:
     sc = res.setup_change or {}
     replayed = bool((res.replay or {}).get("before") and (res.replay or {}).get("after"))
     if sc.get("flagged"):
-        joints = ", ".join(str(j) for j in sc["joints"])
+        joints = ", ".join(_joint(None, j, res.inputs.joint_names) for j in sc["joints"])
         return {"verdict": "no_improvement",
                 "verdict_reason": f"the validation run does not match the fit run's arm/setup (joint(s) {joints}: "
                                   "validation error beyond the fit run's own held-out error, see setup_change); no "
@@ -122,12 +123,17 @@ def verdict(res: RepairResult) -> dict:
     return {"verdict": "repaired" if kept else "no_improvement", "verdict_reason": why}
 
 
+#: report.json's statement of how joints are numbered (README, "Joint numbering")
+JOINT_CONVENTION = ("text, labels and signal names number joints from 1 in URDF order (joint 2 = joint_names[1], "
+                    "spring[2], q2); integer fields named joint/joints are 0-based indices into joint_names")
+
+
 def build_report(res: RepairResult) -> dict:
     """The strict ``report.json`` dictionary (contract keys in ``repair.py``'s docstring)."""
     inp, base, fin, sel = res.inputs, res.baseline, res.final, res.selection
     ident = base.fit.as_dict()
     unident = list(base.fit.unidentifiable) + [
-        f"joint {j} ({inp.joint_names[j]}, within {inp.data.position_counts[j]:.0f} encoder counts)" for j in inp.frozen]
+        f"joint {j + 1} ({inp.joint_names[j]}, within {inp.data.position_counts[j]:.0f} encoder counts)" for j in inp.frozen]
     final_ana = R.analyse(inp.fit, fin.fit.residual, validation=(inp.val, fin.val_residual))
     base_model, model = _models(res)
     report = {
@@ -159,6 +165,7 @@ def build_report(res: RepairResult) -> dict:
         "identifiability": {"condition_number": base.fit.cond, "rank": base.fit.rank,
                             "unidentifiable": unident, "unidentifiable_joints": inp.frozen},
         "units": inp.units,
+        "conventions": {"joints": JOINT_CONVENTION},
         "selection": {"steps": [s.as_dict() for s in sel.steps], "min_gain": res.opts.min_gain,
                       "candidates": len(sel.candidates), "last_ranking": sel.ranking[:12], "rows": sel.rows,
                       "rule": "blocked 4-fold held-out error with a gap (filter settling + residual correlation "
@@ -271,7 +278,7 @@ MAX_SEGMENT_COLUMNS = 6
 def torque_validate_figure(res: RepairResult) -> "Figure":
     """Measured, baseline and repaired joint torques [N m] on the validation data: one column
     per validation segment (file, or gap-free stretch of one), each on its own time axis t [s],
-    one row per joint (numbered from 0, as in the report); y-limits shared along a row. Nothing is drawn across a file boundary.
+    one row per joint (numbered from 1, as in the report); y-limits shared along a row. Nothing is drawn across a file boundary.
     Long series are drawn as their min/max envelope (``plotting.envelope``: every spike kept)."""
     from robust_drake.plotting import style
 
@@ -300,7 +307,7 @@ def _torque_validate_figure(res: RepairResult) -> "Figure":
             ax.plot(*envelope(val.t[m], pf[m, j]), color="tab:blue", lw=0.9, label="repaired model")
             ax.grid(alpha=0.3)
             if c == 0:
-                ax.set_ylabel(f"tau joint {j} ({inp.joint_names[j]}) [N m]")
+                ax.set_ylabel(f"tau{j + 1}, joint {j + 1} ({inp.joint_names[j]}) [N m]")
         axes[-1, c].set_xlabel("t [s] (time of this file)")
     axes[0, -1].legend(loc="upper left", bbox_to_anchor=(1.02, 1.0))
     more = f"; first {len(shown)} of {len(segs)} segments shown" if len(segs) > len(shown) else ""
@@ -340,28 +347,27 @@ def _nums(xs, spec: str = ".4f") -> str:
 def _names(rep: dict) -> list[str]:
     n = len(rep["baseline"]["rms_fit"])
     names = rep.get("joint_names") or []
-    return names if len(names) == n else [f"j{i}" for i in range(n)]
+    return names if len(names) == n else [f"joint{i + 1}" for i in range(n)]
 
 
-def _joint(rep: dict, j) -> str:
-    return "all joints" if j is None else f"joint {j} ({_names(rep)[j]})"
+def _joint(rep: dict | None, j, names=None) -> str:
+    """``"joint 2 (name)"`` for the 0-based index 1 of a report field (joints numbered from 1)."""
+    return joint_text(j, _names(rep) if names is None else names)
 
 
-_SIGNAL = re.compile(r"^(sign_qd|qdd|qd|q|tau)(\d+)$")
 
 
 def signal(name: str) -> str:
-    """A residual variable's 1-based CSV name (``q2``) in the report's 0-based numbering (``q[1]``)."""
-    m = _SIGNAL.match(str(name))
-    return f"{m.group(1)}[{int(m.group(2)) - 1}]" if m else str(name)
+    """A residual variable's name as the report shows it: its CSV name (``q2``: joint 2), as given."""
+    return str(name)
 
 
 def _md_header(rep: dict) -> list[str]:
     d = rep["data"]["fit"]
     return [f"# Repair report: {rep['robot']}", "",
             f"**Verdict: {rep.get('verdict', 'n/a')}** ({rep.get('verdict_reason', '')}).", "",
-            f"Joints (numbered from 0, URDF names): "
-            + ", ".join(f"{j} = `{nm}`" for j, nm in enumerate(_names(rep))) + ".", "",
+            f"Joints (numbered from 1 as the CSV columns q1..qn, URDF names): "
+            + ", ".join(f"{j + 1} = `{nm}`" for j, nm in enumerate(_names(rep))) + ".", "",
             f"Fit samples: {rep['samples']} ({len(d['sources'])} file{'s' if len(d['sources']) != 1 else ''}); validation samples: "
             f"{rep['samples_validate']} ({_validation_source(rep)}). Torque column: `{rep['torque']}`.",
             f"Filter: {d['filter']['method']}, cut-off {d['filter']['cutoff_hz']} Hz, "
@@ -395,7 +401,7 @@ def _md_setup(rep: dict) -> list[str]:
         return []
     L = ["", "## Fit run vs validation run (setup change)", "",
          ("**Flagged**: the validation run does not match the fit run's arm or setup on joint(s) "
-          + ", ".join(str(j) for j in sc["joints"]) + "; no effect is claimed on the strength of that validation."
+          + ", ".join(_joint(rep, j) for j in sc["joints"]) + "; no effect is claimed on the strength of that validation."
           if sc["flagged"] else "Not flagged: the validation error is within the fit run's own held-out error and its spread."),
          "", f"Rule: {sc['rule']}.", "", "| joint | held-out RMS (fit run) | validation RMS | ratio [interval] | p |",
          "|---|---|---|---|---|"]
@@ -430,8 +436,8 @@ def _md_errors(rep: dict) -> list[str]:
     n = len(names)
     row = lambda label, a, b: f"| {label} | " + " | ".join(a) + " | " + " | ".join(b) + " |"  # noqa: E731
     L = ["## Error before and after (RMS torque residual per joint, N m)", "",
-         "| model | " + " | ".join(f"fit {j} {nm}" for j, nm in enumerate(names)) + " | "
-         + " | ".join(f"validate {j} {nm}" for j, nm in enumerate(names)) + " |", "|---|" + "---|" * (2 * n)]
+         "| model | " + " | ".join(f"fit {j + 1} {nm}" for j, nm in enumerate(names)) + " | "
+         + " | ".join(f"validate {j + 1} {nm}" for j, nm in enumerate(names)) + " |", "|---|" + "---|" * (2 * n)]
     L.append(row("baseline (rigid body + Coulomb + viscous)", [_num(x, ".4f") for x in rep["baseline"]["rms_fit"]],
                  [_num(x, ".4f") for x in rep["baseline"]["rms_validate"]]))
     for e in rep["effects"]:
@@ -556,7 +562,7 @@ def _md_selection(rep: dict) -> list[str]:
                  f"{'added' if s['accepted'] else 'stop'}: {s['reason']} |")
     sel = rep["selection"]
     return L + ["", f"Rule: {sel['rule']}; min gain {_num(sel['min_gain'], '.0%')}; {sel['candidates']} candidates. "
-                "Scores are relative to the baseline's held-out error. Effect labels give joints from 0.", ""]
+                "Scores are relative to the baseline's held-out error. Effect labels number joints from 1 (`spring[2]`: joint 2).", ""]
 
 
 def _md_residual(rep: dict) -> list[str]:
@@ -567,12 +573,12 @@ def _md_residual(rep: dict) -> list[str]:
         col = rep["residual"]["final"]["coloured"]
         L.append("**unexplained_structure: true.** The repaired model's residual still depends on the state "
                  f"where no library effect explains it: {where or 'none by state'}"
-                 + (f"; coloured residual on joints {[c['joint'] for c in col]}" if col else "") + ".")
+                 + (f"; coloured residual on joints {joint_numbers(c['joint'] for c in col)}" if col else "") + ".")
     else:
         L.append("unexplained_structure: false (no state variable explains >= "
                  f"{_num(R.ETA_MIN, '.0%')} of the residual variance at p < {R.ALPHA}).")
     L += ["", "Strongest state dependences of the final residual (eta^2 = share of residual variance explained by "
-          "a binned function of the variable; signals indexed from 0 like the joints):"]
+          "a binned function of the variable; signals numbered from 1 like the joints, q2 = joint 2's angle):"]
     for d in rep["residual"]["final"]["state_dependence_top"][:6]:
         L.append(f"- {_joint(rep, d['joint'])} vs {signal(d['variable'])}: eta^2 = {_num(d['eta2'], '.3f')}")
     return L

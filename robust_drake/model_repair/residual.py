@@ -24,6 +24,7 @@ names the joint and variable(s) that carry it.
 
 from __future__ import annotations
 
+import re
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -38,14 +39,29 @@ RHO_MAX = 0.5
 REVERSAL_WINDOW = 0.1  # s
 
 
+def signal_name(kind: str, j: int) -> str:
+    """The name of joint index ``j``'s (0-based) signal ``kind``: the joint NUMBER from 1, as the
+    CSV columns and ``SimulationResult.to_pandas`` (``signal_name("q", 0) == "q1"``)."""
+    return f"{kind}{j + 1}"
+
+
+_SIGNAL = re.compile(r"^(q|qd|sign_qd|qdd|tau)(\d+)$")
+
+
+def signal_joint(name: str) -> tuple[str, int] | None:
+    """(kind, 0-based joint index) of a :func:`signal_name` (``"qd2"`` -> ("qd", 1)), else None."""
+    m = _SIGNAL.match(str(name))
+    return (m.group(1), int(m.group(2)) - 1) if m else None
+
+
 def explanatory_variables(data: IdentData) -> dict[str, np.ndarray]:
     out = {}
     for i in range(data.n):
-        out[f"q[{i}]"] = data.q[:, i]  # signals indexed from 0 like the joints
-        out[f"qd[{i}]"] = data.qd[:, i]
-        out[f"sign_qd[{i}]"] = np.sign(data.qd[:, i])
-        out[f"qdd[{i}]"] = data.qdd[:, i]
-        out[f"tau[{i}]"] = data.tau[:, i]
+        out[signal_name("q", i)] = data.q[:, i]  # q1, qd1, ...: joints numbered from 1
+        out[signal_name("qd", i)] = data.qd[:, i]
+        out[signal_name("sign_qd", i)] = np.sign(data.qd[:, i])
+        out[signal_name("qdd", i)] = data.qdd[:, i]
+        out[signal_name("tau", i)] = data.tau[:, i]
     out["t"] = data.t
     return out
 
@@ -87,7 +103,7 @@ def state_dependence(data: IdentData, residual: np.ndarray, bins: int = BINS) ->
 
 
 def configuration_dependence(dependence: list[dict], n: int, alpha: float = ALPHA) -> list[dict]:
-    """Rows ``test = "configuration_dependence"`` (joint j, variable q[k], eta2, p, level) where
+    """Rows ``test = "configuration_dependence"`` (joint j, variable q<k>, eta2, p, level) where
     the residual of joint j depends on the angle of another joint k != j: the F test of
     :func:`state_dependence` (N_eff samples) at level ``alpha`` / (n (n - 1)) (Bonferroni over
     the ordered joint pairs). What offers ``configuration_dependent[j]`` to the selection (which
@@ -96,7 +112,8 @@ def configuration_dependence(dependence: list[dict], n: int, alpha: float = ALPH
     out = []
     for d in dependence:
         v = d["variable"]
-        if not v.startswith("q[") or int(v[2:-1]) == d["joint"] or not d["p"] < level:
+        sj = signal_joint(v)
+        if sj is None or sj[0] != "q" or sj[1] == d["joint"] or not d["p"] < level:
             continue
         out.append({"test": "configuration_dependence", "joint": d["joint"], "variable": v,
                     "eta2": round(d["eta2"], 4), "p": float(d["p"]), "level": level})
@@ -236,7 +253,7 @@ def _reversal_panel(ax, data: IdentData, series) -> None:
         for j in range(data.n):
             lag, prof, k = reversal_profile(data, r, j)
             ax.plot(lag, prof[:, j], color=colr, ls=("-", "--", ":", "-.")[j % 4], lw=1.2,
-                    label=f"{lab}, joint {j}: {k} reversals")
+                    label=f"{lab}, joint {j + 1}: {k} reversals")
     ax.axvline(0, color="0.5", lw=0.6)
     ax.set(xlabel="time from qd_j reversal [s]", ylabel="mean residual r_j [N m]",
            title="around velocity reversals")
@@ -248,8 +265,8 @@ def residual_figure(data: IdentData, residual: np.ndarray, title: str = "residua
     """The torque residual r = tau_meas - tau_model [N m] against the state, its spectrum and
     its mean around velocity reversals, as one matplotlib ``Figure`` of six panels.
 
-    Every panel holds all joints (numbered from 0 as in the report; line style: joint 0 solid,
-    joint 1 dashed, ...) and both
+    Every panel holds all joints (numbered from 1 as in the report; line style: joint 1 solid,
+    joint 2 dashed, ...) and both
     models (colour: ``residual`` red, ``other`` blue); the state panels show the mean residual
     in 16 equal bins (1-99 % range) of q_j [rad], qd_j [rad/s], qdd_j [rad/s^2] and tau_j [N m].
 

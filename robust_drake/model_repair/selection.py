@@ -705,7 +705,7 @@ def _below_floor(search: _Search, cur: dict, t: dict, st: Step) -> bool:
     ratio = expl[j] / search.noise[j] if j is not None else float(np.sqrt(np.mean((expl / search.noise) ** 2)))
     if ratio >= 1.0:
         return False
-    where = f"joint {j}" if j is not None else "all joints"
+    where = f"joint {j + 1}" if j is not None else "all joints"
     st.reason = (f"held-out gain {t['joint_gain']:.1%} on {where}, but below the noise floor: explained RMS "
                  f"{ratio:.2f} x the white-noise level")
     return True
@@ -717,7 +717,7 @@ def _judge(search: _Search, cur: dict, t: dict, st: Step) -> bool:
 
     e, effects = t["effect"], cur["effects"] + [t["effect"]]
     j = _target(e)
-    where = f"joint {j}" if j is not None else "all joints"
+    where = f"joint {j + 1}" if j is not None else "all joints"
     if not search.has_confirm:
         st.reason = (f"held-out error on {where} -{t['joint_gain']:.1%} (no confirmation block: segments too "
                      f"short; rule: >= {search.min_gain:.0%})")

@@ -41,7 +41,7 @@ switch is held to the torque rule like an effect (issue
 13): with errors in the variables the validation data's regressor is as noisy as the fit data's,
 so the attenuated LS parameters can be the better *equation-error* predictor there even when they
 are wrong (tests/test_hidden_effects.py's sensor-vibration arm: IV within 3 % of the truth, the
-replay 4-14x better, the validation torque error +6.5 % on joint 0); the report then says that IV
+replay 4-14x better, the validation torque error +6.5 % on joint 1); the report then says that IV
 was tried and why it was dropped (``rejected_effects``, kind ``estimator``).
 
 Friction signs: every fitted model (baseline and final, :func:`fit_friction_bounded`) has Coulomb
@@ -156,7 +156,7 @@ def load_inputs(fit_paths, validate_paths, opts, log) -> Inputs:
     warn += exclusion_messages(fit, exclude, names)
     frozen = frozen_joints(data)
     for j in frozen:
-        warn.append(f"joint {j} ({names[j]}) moves within {data.position_counts[j]:.0f} encoder count(s) in "
+        warn.append(f"joint {j + 1} ({names[j]}) moves within {data.position_counts[j]:.0f} encoder count(s) in "
                     "every fit file: its parameters are unidentifiable (excite that joint)")
     return Inputs(opts.robot, list(fit_paths), validate_paths, data, fit, val, regressor, cf, cv, names, frozen, units,
                   warn, notes)
@@ -270,7 +270,7 @@ def worse_text(joint_names, tests, joints, rule: Rule, what: str) -> str:
     """The reason of a drop: the joints, each change with its interval, the blocks and the rule."""
     t0 = tests[joints[0]]
     return (f"with it the {what} is worse than the least-squares baseline's on joint(s) "
-            + ", ".join(f"{j} ({joint_names[j]}) {tests[j].text()}" for j in joints)
+            + ", ".join(f"{j + 1} ({joint_names[j]}) {tests[j].text()}" for j in joints)
             + f" ({t0.blocks} blocks of {t0.block} samples; {rule.text()})")
 
 
@@ -378,7 +378,7 @@ def friction_warnings(clamped: dict, joint_names, what: str) -> list[str]:
     for nm in clamped:
         j = int(nm[2:]) - 1
         kind, unit = ("Coulomb", "N m") if nm.startswith("fc") else ("viscous", "N m s/rad")
-        out.append(f"{what}: the free fit gives joint {j} ({joint_names[j]}) a negative {kind} level "
+        out.append(f"{what}: the free fit gives joint {j + 1} ({joint_names[j]}) a negative {kind} level "
                    f"{th[nm]:.4g} {unit}; refitted with it fixed at 0 (friction levels must be >= 0)")
     return out
 
@@ -499,7 +499,7 @@ def _replay_check(inp, base, est, ls_k, iv_k, opts, log) -> None:
     if worse:
         est.method = est.report["method"] = "least_squares"
     log(f"replay of the fit data, RMS q: LS {np.round(r_ls['rms_q'], 4)}, IV {np.round(r_iv['rms_q'], 4)}; IV vs LS "
-        + ", ".join(f"joint {j} {t.text()}" for j, t in enumerate(tests)) + f" -> {est.method}")
+        + ", ".join(f"joint {j + 1} {t.text()}" for j, t in enumerate(tests)) + f" -> {est.method}")
 
 
 # ------------------------------------------------------------------------------------ selection
@@ -565,7 +565,7 @@ def resolve_torque_scale(inp: Inputs, base: Baseline, est: Estimator, sel: Selec
             sel.step_label[effect_label(new_e)] = effect_label(e)
             sel.chosen[k] = new_e
             sel.weights = refit_weights(inp, base, est, sel.chosen, opts)
-            log(f"torque_scale: the equivalent gain on joint {res['joint']} keeps the rigid-body "
+            log(f"torque_scale: the equivalent gain on joint {res['joint'] + 1} keeps the rigid-body "
                 f"parameters closer to the URDF (chi2 {res['chi2_swapped']:.1f} vs "
                 f"{res['chi2_as_fitted']:.1f}): reported there")
         sel.joint_resolution[effect_label(sel.chosen[k])] = res
@@ -732,7 +732,7 @@ def compare_nominal(inp: Inputs, sel: Selection, fin: Final, guard: Guard, opts,
                  if a > b * (1.0 + guard.tolerance)]
         if worse:
             why = (f"URDF model + {named['label']} validates worse on joint(s) "
-                   f"{', '.join(f'{j} ({inp.joint_names[j]})' for j in worse)} than the URDF model alone")
+                   f"{', '.join(f'{j + 1} ({inp.joint_names[j]})' for j in worse)} than the URDF model alone")
             guard.dropped.append({"label": named["label"], "kind": named["kind"], "joint": named["joint"],
                                   "reason": why})
             log(f"never worse: dropped {named['label']}: {why}")
@@ -908,7 +908,7 @@ def replay_pair(inp: Inputs, base: Baseline, fin: Final, sel: Selection, cons: C
     tests = replay_tests(before, after, rule, sel.chosen)
     out = {"before": summary_of(before), "after": summary_of(after)}
     log(f"replay rms q before {np.round(out['before']['rms_q'], 4)} after {np.round(out['after']['rms_q'], 4)}; "
-        + ", ".join(f"joint {j} {t.text()}" for j, t in enumerate(tests)))
+        + ", ".join(f"joint {j + 1} {t.text()}" for j, t in enumerate(tests)))
     return out, tests
 
 

@@ -75,7 +75,7 @@ class BacklashDrive(LeafSystem):
     def __init__(self, n: int, joint: int, b: float, J_m: float, stiffness: float, damping: float):
         super().__init__()
         if not 0 <= joint < n:
-            raise RobustDrakeError(f"backlash: joint {joint} out of range for {n} joints")
+            raise RobustDrakeError(f"backlash: joint index {joint} (0-based) out of range for {n} joints")
         if b < 0 or J_m <= 0 or stiffness <= 0 or damping < 0:
             raise RobustDrakeError("backlash: needs b >= 0, J_m > 0, stiffness > 0, damping >= 0")
         self.n, self.j = n, int(joint)

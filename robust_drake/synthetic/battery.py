@@ -300,8 +300,8 @@ def format_table(rows) -> str:
     lines = [head, "|" + "---|" * 8]
     for r in rows:
         t = r["truth"]
-        truth = "none" if not t.get("kind") else f"{t['kind']}[{'all' if t.get('joint') is None else t['joint']}]"
-        claimed = ", ".join(f"{k}[{'all' if j is None else j}] {c}" for k, j, c in r["claimed"]) or "nothing"
+        truth = "none" if not t.get("kind") else f"{t['kind']}[{'all' if t.get('joint') is None else t['joint'] + 1}]"
+        claimed = ", ".join(f"{k}[{'all' if j is None else j + 1}] {c}" for k, j, c in r["claimed"]) or "nothing"
         if t.get("kind") and t.get("case", t.get("kind")) in OUTSIDE:
             claimed += " (flagged)" if r["unexplained"] else " (not flagged)"
         perr = "-" if r["param_error"] is None else f"{100 * r['param_error']:.0f} %"

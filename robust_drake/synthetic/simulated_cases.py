@@ -184,7 +184,7 @@ def backlash_case(robot: str = "siciliano_2link", seed: int = 0, out_dir=None, d
     os.makedirs(out_dir, exist_ok=True)
     J = _reflected_inertias(robot)
     if J[j] <= 0:
-        raise RobustDrakeError(f"backlash_case: joint {j} of {robot} has no reflected rotor inertia")
+        raise RobustDrakeError(f"backlash_case: joint {j + 1} of {robot} has no reflected rotor inertia")
     k, c = contact_parameters(J[j], p["frequency_hz"], p["damping_ratio"])
     stripped = strip_rotor_inertia(robot, os.path.join(out_dir, f"{robot}_no_rotor.urdf"))
     rigid = [("rotor_inertia", i, {"reflected_inertia": J[i]}) for i in range(len(J)) if i != j and J[i] > 0]
