@@ -48,7 +48,7 @@ def _strings(x):
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
     import robust_drake as rd
-    from robust_drake.model_repair import battery as B
+    from robust_drake.synthetic import battery as B
 
     d = tmp_path_factory.mktemp("joints")
     fits, vals, truth = B.generate(ROBOT, "position_dependent", str(d), rate_hz=250.0, duration=6.0)
@@ -90,7 +90,7 @@ def test_names_match_numbers(run):
 def test_effect_labels_and_signals_are_one_based(run):
     """Effect labels kind[k] and signal names q<k> use k = 1..3; the integer joint fields of
     report.json are the 0-based index of the same joint (label number = index + 1)."""
-    from robust_drake.model_repair.effects import EFFECTS
+    from robust_drake.effects import EFFECTS
 
     rep = run["rep"]
     for t in _texts(run):
@@ -171,7 +171,7 @@ def test_messages_in_the_callers_words(run, tmp_path, capsys):
 def test_effect_label_and_term_tokens():
     """The library's own labels: the spring on index 5 is spring[6]; a configuration term token
     s1 is sin q1 (the first joint), and its coefficient is named sin(q1)."""
-    from robust_drake.model_repair.effects import make_effect, parse_terms
+    from robust_drake.effects import make_effect, parse_terms
 
     assert make_effect("spring", 5).name == "spring[6]"
     assert make_effect("time_delay").name.startswith("time_delay[all]")
@@ -191,8 +191,8 @@ def test_model_files_of_version_1_are_read_in_the_new_numbering(tmp_path):
     functions under the new names: "s0" on the elbow (sin of the first joint's angle) becomes
     "s1", its coefficient sin(q0) becomes sin(q1); a saved model is version 2 and reads back as
     written."""
-    from robust_drake.model_repair.effects import make_effect, parse_terms
-    from robust_drake.model_repair.model import MODEL_VERSION, IdentifiedModel
+    from robust_drake.effects import make_effect, parse_terms
+    from robust_drake.identification.model import MODEL_VERSION, IdentifiedModel
 
     v1 = {"format": "robust_drake.identified_model", "version": 1, "robot": ROBOT,
           "joint_names": ["joint1", "joint2", "joint3"], "base": {"names": ["b0"], "values": [1.0], "covariance": None},

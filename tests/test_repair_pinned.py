@@ -65,7 +65,7 @@ def report(tmp_path_factory):
 
     matplotlib.use("Agg")
     from robust_drake.model_repair.pipeline import RepairOptions, run_repair
-    from robust_drake.model_repair.simulated_cases import outside_case
+    from robust_drake.synthetic.simulated_cases import outside_case
 
     out = tmp_path_factory.mktemp("pinned")
     fit, val, _ = outside_case("dead_zone", robot="serial7", duration=8, rate_hz=500, out_dir=str(out))
