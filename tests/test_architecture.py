@@ -116,7 +116,7 @@ def test_no_import_cycle():
 #: module belongs to the longest prefix that names it.
 LAYERS = [
     ["robust_drake.errors", "robust_drake.robots_dir", "robust_drake.allocator", "robust_drake.divergence",
-     "robust_drake.extras", "robust_drake.log"],
+     "robust_drake.extras", "robust_drake.log", "robust_drake.joints"],
     ["robust_drake.description", "robust_drake.kinematics", "robust_drake.loop_defaults", "robust_drake.metrics",
      "robust_drake.parallel", "robust_drake.analysis"],
     ["robust_drake.models", "robust_drake.registry", "robust_drake.regressor", "robust_drake.uncertainty",

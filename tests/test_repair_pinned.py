@@ -19,7 +19,9 @@ RTOL = 1e-9
 #: the selection's CV scores (see test_selection_steps_are_the_pinned_ones)
 SCORE_RTOL = 1e-7
 
-#: from main at 869d20d (see the module docstring)
+#: from main at 869d20d (see the module docstring); the step labels are written in the 1-based
+#: joint convention of issue 25 (869d20d printed ``dead_zone[1]`` for what is now ``dead_zone[2]``);
+#: the integer ``joint`` field of an effect is still the 0-based index
 PINNED = {
     "verdict": "repaired",
     "estimator": "instrumental_variables",
@@ -29,23 +31,23 @@ PINNED = {
                               0.014999041043355024, 0.012567559389599475, 0.027356029223743198],
     "final_rms_validate": [0.025499622956204556, 0.3265147306737028, 0.01754507713512464, 0.0309248176784763,
                            0.014132474086326018, 0.012592373486694576, 0.027833553425683236],
-    "steps": [("dead_zone[1](threshold=4.51915)", 0.775372484724703, True),
-              ("asymmetric_coulomb[1](v_eps=0.02)", 0.7662976916860098, False),
-              ("asymmetric_coulomb[2](v_eps=0.02)", 0.6857529128881061, False),
-              ("position_dependent[2](harmonic=2)", 0.7376339456645477, False),
-              ("torque_offset[2]", 0.7215749176715501, False),
-              ("position_dependent[2](harmonic=3)", 0.7363820323762094, False),
-              ("position_dependent[5](harmonic=9)", 0.6605851967962401, False),
-              ("smooth_coulomb[1](transition_velocity=1,form=tanh)", 0.7835067677540181, False),
-              ("position_dependent[5](harmonic=10)", 0.6571974950097375, False),
-              ("presliding_friction[1](presliding_displacement=0.003)", 0.7711985665678484, False),
-              ("torque_offset[5]", 0.7418639880780532, False),
-              ("position_dependent[5](harmonic=8)", 0.6379443293766213, False),
-              ("smooth_coulomb[1](transition_velocity=0.3,form=tanh)", 0.7842731473539388, False),
-              ("position_dependent[5](harmonic=4)", 0.7030665461377711, False),
-              ("presliding_friction[1](presliding_displacement=0.01)", 0.7709012875639369, False),
-              ("position_dependent[5](harmonic=5)", 0.6703920088957837, False),
-              ("torque_scale[1]", 0.7711126416921446, False)],
+    "steps": [("dead_zone[2](threshold=4.51915)", 0.775372484724703, True),
+              ("asymmetric_coulomb[2](v_eps=0.02)", 0.7662976916860098, False),
+              ("asymmetric_coulomb[3](v_eps=0.02)", 0.6857529128881061, False),
+              ("position_dependent[3](harmonic=2)", 0.7376339456645477, False),
+              ("torque_offset[3]", 0.7215749176715501, False),
+              ("position_dependent[3](harmonic=3)", 0.7363820323762094, False),
+              ("position_dependent[6](harmonic=9)", 0.6605851967962401, False),
+              ("smooth_coulomb[2](transition_velocity=1,form=tanh)", 0.7835067677540181, False),
+              ("position_dependent[6](harmonic=10)", 0.6571974950097375, False),
+              ("presliding_friction[2](presliding_displacement=0.003)", 0.7711985665678484, False),
+              ("torque_offset[6]", 0.7418639880780532, False),
+              ("position_dependent[6](harmonic=8)", 0.6379443293766213, False),
+              ("smooth_coulomb[2](transition_velocity=0.3,form=tanh)", 0.7842731473539388, False),
+              ("position_dependent[6](harmonic=4)", 0.7030665461377711, False),
+              ("presliding_friction[2](presliding_displacement=0.01)", 0.7709012875639369, False),
+              ("position_dependent[6](harmonic=5)", 0.6703920088957837, False),
+              ("torque_scale[2]", 0.7711126416921446, False)],
     "replay_after_rms_q": [0.00018070701940539404, 0.0004291483291275388, 0.00012295599938166377,
                            0.00040131185792006047, 0.00013739616635357468, 0.00024404602138450255,
                            0.0008868934267292434],
