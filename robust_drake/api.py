@@ -283,9 +283,7 @@ def repair(fit: Any, robot: str, *, validate: Any = None,
     sigma_rel : float, optional
         Relative trust in the URDF's base parameters for that comparison (None: 0.05).
     level : float, optional
-        Confidence level of every decision made from the data (accept an effect, call a model
-        worse than the baseline, flag a setup change): paired block tests, Holm over the joints,
-        one-sided at (1 - level) / 2 (None: 0.95).
+        Confidence level of every decision from the data (effects, guards, setup change; None: 0.95).
     overwrite : bool
         Replace an earlier report in ``out`` (False refuses, like the CLI without ``--force``).
     progress : callable, optional
@@ -301,16 +299,13 @@ def repair(fit: Any, robot: str, *, validate: Any = None,
         ``.baseline_model`` (:class:`IdentifiedModel`), ``.plot()`` and ``.to_markdown()``.
     """
     from robust_drake.errors import OptionError
-    from robust_drake.identification.data import DEFAULT_CUTOFF_HZ
     from robust_drake.log import progress_callback
     from robust_drake.model_repair.pipeline import RepairOptions
-    from robust_drake.model_repair.selection import MIN_GAIN
+    given = {"cutoff_hz": cutoff_hz, "min_gain": min_gain, "sigma_rel": sigma_rel, "level": level}
     try:  # the command line's validation (RepairOptions.validate, pipeline.run_repair): one set of rules
-        opts = RepairOptions(robot=robot, torque=torque, cutoff_hz=DEFAULT_CUTOFF_HZ if cutoff_hz is None else cutoff_hz,
-                             kinds=effects, min_gain=MIN_GAIN if min_gain is None else min_gain, max_effects=max_effects,
-                             consistent=consistent, replay=replay, plots=plots, nominal=nominal, instruments=instruments,
-                             **({} if sigma_rel is None else {"sigma_rel": sigma_rel}),
-                             **({} if level is None else {"level": level}))
+        opts = RepairOptions(robot=robot, torque=torque, kinds=effects, max_effects=max_effects, consistent=consistent,
+                             replay=replay, plots=plots, nominal=nominal, instruments=instruments,
+                             **{k: v for k, v in given.items() if v is not None})  # None: RepairOptions' default
         return _repair_logs(fit, validate, opts, out, progress_callback(progress), overwrite)
     except OptionError as exc:
         if exc.option == "kinds":  # the API's keyword for RepairOptions.kinds
