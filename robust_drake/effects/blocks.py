@@ -1,0 +1,42 @@
+"""Diagram helpers for a plain list of effects ``[(Effect, parameters), ...]``: their force blocks
+summed into a plant (used by the experiment generator and by replay) and the closed-loop hooks.
+"""
+
+from __future__ import annotations
+
+
+def effect_force_blocks(effects, n, sample_period=None) -> list:
+    """The force blocks of ``effects`` = [(Effect, parameters), ...] for an n-joint plant, in
+    order (plant-modifying effects have none)."""
+    blocks = [eff.block(n, params, sample_period=sample_period) for eff, params in effects]
+    return [b for b in blocks if b is not None]
+
+
+def add_effect_blocks(builder, plant, tau_port, effects, sample_period=None, extra_blocks=()):
+    """Connect ``tau_port`` (commanded torque, n) plus every force-type effect block (then the
+    already built ``extra_blocks``) into the plant's ``applied_generalized_force`` input through
+    :func:`robust_drake.systems.forces.sum_into_plant`. ``effects`` = [(Effect, parameters),
+    ...]; plant-modifying effects must already have been applied (``load_plant(robot,
+    effects)``). Returns the list of added blocks."""
+    from robust_drake.systems.forces import add_force_blocks, sum_into_plant
+
+    blocks = effect_force_blocks(effects, plant.num_velocities(), sample_period) + list(extra_blocks)
+    ports = add_force_blocks(builder, plant, blocks, tau_port)
+    sum_into_plant(builder, plant, [tau_port] + ports, name="applied_force_sum")
+    return blocks
+
+
+def closed_loop_hooks(effects, sample_period=None) -> dict:
+    """Hooks for :class:`robust_drake.diagram.ClosedLoopConfig`: ``{"effects": [...],
+    "plant_setup": [...]}`` from ``[(Effect, parameters), ...]``. Force-type effects become block
+    factories ``f(ctx)`` (the delay line samples at the loop's period unless ``sample_period``);
+    plant-modifying ones become ``f(plant, context)`` calls of :meth:`Effect.apply_to_context`.
+    Usage: ``ClosedLoopConfig(..., **closed_loop_hooks(chosen))``."""
+    blocks, setup = [], []
+    for eff, params in effects:
+        if eff.modifies_plant:
+            setup.append(lambda plant, ctx, e=eff, p=params: e.apply_to_context(plant, ctx, p))
+        else:
+            blocks.append(lambda bctx, e=eff, p=params: e.block(
+                bctx.n, p, sample_period=sample_period or bctx.period))
+    return {"effects": blocks, "plant_setup": setup}
