@@ -11,7 +11,7 @@ Every name is handed on here: ``from robust_drake.effects import make_effect``.
 from robust_drake.effects.base import (CONTEXT_CONFIGURATIONS, DEFAULT_BUS_DELAY, V_EPS, Effect, EffectForceBlock,
                                        PhysicalContext, admissible, check_bounds, delay_bound, smooth_sign,
                                        subsample_configurations, time_derivative)
-from robust_drake.effects.blocks import add_effect_blocks, closed_loop_hooks, effect_force_blocks
+from robust_drake.effects.blocks import add_effect_blocks, block_factory, effect_force_blocks, effect_hooks
 from robust_drake.effects.diagnosed import (DeadZone, FrictionDrift, PeriodicDisturbanceEffect, TimeEffect,
                                             TimeEffectBlock)
 from robust_drake.effects.friction import (AsymmetricCoulomb, LoadDependentFriction, PreslidingFriction,

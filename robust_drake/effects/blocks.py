@@ -1,5 +1,6 @@
 """Diagram helpers for a plain list of effects ``[(Effect, parameters), ...]``: their force blocks
-summed into a plant (used by the experiment generator and by replay) and the closed-loop hooks.
+summed into a plant (used by the experiment generator and by replay) and the plant side of a
+closed loop (:func:`effect_hooks`).
 """
 
 from __future__ import annotations
@@ -26,17 +27,29 @@ def add_effect_blocks(builder, plant, tau_port, effects, sample_period=None, ext
     return blocks
 
 
-def closed_loop_hooks(effects, sample_period=None) -> dict:
-    """Hooks for :class:`robust_drake.diagram.ClosedLoopConfig`: ``{"effects": [...],
-    "plant_setup": [...]}`` from ``[(Effect, parameters), ...]``. Force-type effects become block
-    factories ``f(ctx)`` (the delay line samples at the loop's period unless ``sample_period``);
-    plant-modifying ones become ``f(plant, context)`` calls of :meth:`Effect.apply_to_context`.
-    Usage: ``ClosedLoopConfig(..., **closed_loop_hooks(chosen))``."""
+#: sample period [s] of a delay line whose loop context names none (a bare ``ctx`` with ``n`` only)
+DEFAULT_SAMPLE_PERIOD = 1e-3
+
+
+def block_factory(eff, parameters: dict, sample_period=None):
+    """``f(ctx) -> LeafSystem``: the block of ``eff`` for the loop's ``ctx.n`` joints, built when
+    the closed-loop builder asks for it. A delay line samples at ``sample_period`` [s] (None: the
+    loop's ``ctx.period``, else :data:`DEFAULT_SAMPLE_PERIOD`)."""
+    return lambda ctx: eff.block(ctx.n, parameters,
+                                 sample_period=sample_period or getattr(ctx, "period", DEFAULT_SAMPLE_PERIOD))
+
+
+def effect_hooks(effects, sample_period=None) -> dict:
+    """The plant side of :class:`robust_drake.diagram.ClosedLoopConfig` for ``[(Effect,
+    parameters), ...]``: ``{"effects": [...], "plant_setup": [...]}``. Force-type effects become
+    block factories (:func:`block_factory`); plant-modifying ones become ``f(plant, context)``
+    calls of :meth:`Effect.apply_to_context`, so none is dropped. Usage:
+    ``ClosedLoopConfig(..., **effect_hooks(chosen))``; an identified model's whole loop is
+    :meth:`IdentifiedModel.closed_loop_hooks`, which calls this for its plant."""
     blocks, setup = [], []
     for eff, params in effects:
         if eff.modifies_plant:
             setup.append(lambda plant, ctx, e=eff, p=params: e.apply_to_context(plant, ctx, p))
         else:
-            blocks.append(lambda bctx, e=eff, p=params: e.block(
-                bctx.n, p, sample_period=sample_period or bctx.period))
+            blocks.append(block_factory(eff, params, sample_period))
     return {"effects": blocks, "plant_setup": setup}
