@@ -253,14 +253,14 @@ def test_apply_to_context_equals_apply_to_plant(kind, params):
 
 
 def test_effect_blocks_in_the_closed_loop_builder():
-    """closed_loop_hooks plugs effects into diagram.ClosedLoopConfig: a PD loop holding the
+    """effect_hooks plugs effects into diagram.ClosedLoopConfig: a PD loop holding the
     hanging arm against a 0.3 N m torque offset on joint 1 settles where its command equals the
     gravity torque at the reached posture plus the offset (static balance u + f_e = g(q))."""
     from robust_drake.diagram import ClosedLoopConfig, simulate
-    from robust_drake.effects import closed_loop_hooks
+    from robust_drake.effects import effect_hooks
 
     c = 0.3
-    hooks = closed_loop_hooks([(make_effect("torque_offset", 1), {"offset": c})])
+    hooks = effect_hooks([(make_effect("torque_offset", 1), {"offset": c})])
     cfg = ClosedLoopConfig(robot=ROBOT, controller="pd", controller_params={"K": [1.0, 0.5], "Lambda": [10, 10]},
                            trajectory="sine", trajectory_params={"amplitude": [0.0, 0.0]}, rate=500.0,
                            duration=3.0, initial_q=[0.2, 0.2], **hooks)

@@ -49,12 +49,12 @@ def _applied_minus_tau(diagram, plant, tau_port, t=0.0):
 
 def _closed_loop():
     from robust_drake.diagram import ClosedLoop, ClosedLoopConfig
-    from robust_drake.effects import closed_loop_hooks
+    from robust_drake.effects import effect_hooks
 
     loop = ClosedLoop(ClosedLoopConfig(
         robot=ROBOT, controller="pd", trajectory="sine", observer="exact", rate=500.0,
         plant_friction={"coulomb": list(FC), "viscous": list(FV)}, encoder_resolution=None,
-        torque_limit=None, **closed_loop_hooks(_effects())))
+        torque_limit=None, **effect_hooks(_effects())))
     loop._finish()
     return _applied_minus_tau(loop.diagram, loop.plant, loop.tau_port)
 

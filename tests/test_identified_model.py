@@ -27,6 +27,12 @@ def case(tmp_path_factory):
     return rep, truth, val
 
 
+def _feedforward(model):
+    """The controller's feedforward term f(q, v) of the model's one door to a loop."""
+    (ff,) = model.closed_loop_hooks(controller=True)["feedforward"]
+    return ff
+
+
 def _states(n, rng, count=50):
     return (rng.uniform(-np.pi, np.pi, (count, n)), rng.uniform(-2, 2, (count, n)), rng.uniform(-5, 5, (count, n)))
 
@@ -38,7 +44,7 @@ def test_json_round_trip_gives_the_same_torques(case):
     back = IdentifiedModel.from_json(json.loads(json.dumps(model.to_json())))
     q, qd, qdd = _states(model.n, np.random.default_rng(3))
     np.testing.assert_allclose(back.predict_torque(q, qd, qdd), model.predict_torque(q, qd, qdd), rtol=0, atol=1e-12)
-    ff, ff_back = model.feedforward(), back.feedforward()
+    ff, ff_back = _feedforward(model), _feedforward(back)
     np.testing.assert_allclose(ff_back(q[0], qd[0]), ff(q[0], qd[0]), rtol=0, atol=1e-12)
     assert back.joint_names == model.joint_names and len(set(model.joint_names)) == model.n
 
@@ -69,7 +75,7 @@ def test_feedforward_cancels_the_true_cogging(case):
 
     rep, truth, _ = case
     model = IdentifiedModel.from_report(rep)
-    ff = model.feedforward()
+    ff = _feedforward(model)
     p = truth["parameters"]
     true = make_effect("position_dependent", truth["joint"], harmonic=p["harmonic"])
     coef = true.coef_from_parameters(p, 2)
@@ -100,20 +106,14 @@ def test_repair_control_takes_the_model_not_the_report_keys(case):
 
 
 def test_effect_blocks_apply_the_model_force(case):
-    """The block the model adds to a plant's diagram outputs the effect's generalized force for
-    the model's coefficients (the same law the feedforward cancels)."""
-    from pydrake.systems.framework import DiagramBuilder
-    from pydrake.systems.primitives import ConstantVectorSource
-
-    from robust_drake.effects import load_plant
-
+    """The block the model's door puts on the plant side of a loop outputs the effect's
+    generalized force for the model's coefficients (the same law the feedforward cancels)."""
     rep, truth, _ = case
     model = IdentifiedModel.from_report(rep)
-    builder = DiagramBuilder()
-    plant = load_plant(truth["robot"], builder=builder)
-    src = builder.AddSystem(ConstantVectorSource(np.zeros(2)))
-    (blk,) = model.add_effect_blocks(builder, plant, src.get_output_port(0))
-    builder.Build()
+    hooks = model.closed_loop_hooks(plant=True, controller=False, rigid_body=False)
+    assert hooks["plant_setup"] == []  # a force-type effect: a block, no plant change
+    (factory,) = hooks["effects"]
+    blk = factory(type("Ctx", (), {"n": 2})())
     x = np.array([0.2, 0.9, 0.5, -0.3])
     ctx = blk.CreateDefaultContext()
     blk.GetInputPort("state").FixValue(ctx, x)
@@ -121,5 +121,4 @@ def test_effect_blocks_apply_the_model_force(case):
     expected = eff.effect().generalized_force(x[:2], x[2:], None, np.asarray(eff.coefficients))
     np.testing.assert_allclose(blk.GetOutputPort("generalized_force").Eval(ctx), expected, atol=1e-12)
     assert abs(expected[1]) > 0.01 and expected[0] == 0.0
-    facts = model.closed_loop_effects()
-    assert len(facts) == 1 and facts[0](type("Ctx", (), {"n": 2})()).HasInputPort("state")
+    assert blk.HasInputPort("state")

@@ -164,7 +164,7 @@ def test_every_effect_kind_goes_into_a_closed_loop_as_plant_and_as_compensation(
         assert np.abs(ref.q - bare.q).max() > 1e-9  # the effect acts on the arm
     ctrl = loop.controller
     blocks = [b.get_name() for b in loop.compensation_blocks]
-    fed = kind in [t.split("[")[0] for t in with_e.feedforward().terms]
+    fed = kind in [t.split("[")[0] for t in with_e.closed_loop_hooks(controller=True)["feedforward"][0].terms]
     if fed or blocks:
         assert np.abs(np.asarray(res.u) - np.asarray(ref.u)).max() > 1e-9
     else:
@@ -179,12 +179,25 @@ def _mass(loop, res, q):
 
 
 def test_feedforward_no_longer_dies_on_a_stateful_effect_and_plant_changes_are_not_dropped():
-    m = _c1_model(_effect("presliding_friction"))
-    ff = m.feedforward()
+    """Through the model's one door: a stateful effect is left out of the feedforward and handed
+    to the controller as a compensation block; a plant-modifying one (rotor inertia) has no block
+    but a plant setup that adds its I_r = 0.02 kg m^2 to M(q)."""
+    from robust_drake.effects import load_plant
+
+    hooks = _c1_model(_effect("presliding_friction")).closed_loop_hooks(controller=True)
+    (ff,) = hooks["feedforward"]
     assert "presliding_friction" in ff.skipped and ff.reasons["presliding_friction"] == "block"
     assert np.all(np.isfinite(ff(np.zeros(2), np.ones(2))))
-    with pytest.raises(RobustDrakeError, match="plant-modifying"):
-        _c1_model(_effect("rotor_inertia")).closed_loop_effects()
+    assert len(hooks["compensation"]) == 1 and "presliding_friction" not in hooks["not_compensated"]
+    plant_side = _c1_model(_effect("rotor_inertia")).closed_loop_hooks(plant=True, controller=False, rigid_body=False)
+    assert plant_side["effects"] == [] and len(plant_side["plant_setup"]) == 1
+    plant = load_plant(C1)
+    ctx, bare = plant.CreateDefaultContext(), plant.CreateDefaultContext()
+    q = np.array([0.3, -0.7])
+    plant_side["plant_setup"][0](plant, ctx)
+    for c in (ctx, bare):
+        plant.SetPositions(c, q)
+    np.testing.assert_allclose(plant.CalcMassMatrix(ctx) - plant.CalcMassMatrix(bare), np.diag([0.0, 0.02]), atol=1e-12)
 
 
 def test_controllers_take_theta0_and_the_set_from_the_model():

@@ -279,9 +279,12 @@ def test_demo_finds_the_hidden_effect_and_replay_improves(tmp_path):
     assert os.path.exists(tmp_path / "report.md")
     # the report's effects become plant-side blocks for a closed-loop diagram; the Stribeck block
     # opposes motion on its joint and is largest at low speed
-    from robust_drake.model_repair.pipeline import closed_loop_effects, effects_from_report
+    from robust_drake.identification.model import IdentifiedModel
+    from robust_drake.model_repair.pipeline import effects_from_report
 
-    blocks = [f(type("Ctx", (), {"n": 2})()) for f in closed_loop_effects(rep)]
+    hooks = IdentifiedModel.from_report(rep).closed_loop_hooks(plant=True, controller=False, rigid_body=False)
+    blocks = [f(type("Ctx", (), {"n": 2})()) for f in hooks["effects"]]
+    assert hooks["plant_setup"] == []
     assert len(blocks) == 1 and blocks[0].HasInputPort("state")
     eff, params = effects_from_report(rep)[0]
     coef = eff.coef_from_parameters(params, 2)

@@ -57,12 +57,15 @@ def truth() -> dict:
 
 def model_feedforward(report: dict, stage: str = "final"):
     """``f(q, v) -> torques`` [N m] of the identified model ``stage`` ("baseline" or "final"):
-    :meth:`~robust_drake.identification.model.IdentifiedModel.feedforward` of the model the
-    repair report carries (friction ``fc_j sgn(v_j) + fv_j v_j`` plus, for the final model, the
-    effects a controller can compute from (q, v); the others are listed in ``skipped``)."""
+    the ``feedforward`` of :meth:`~robust_drake.identification.model.IdentifiedModel.closed_loop_hooks`
+    for the model the repair report carries (friction ``fc_j sgn(v_j) + fv_j v_j`` plus, for the
+    final model, the effects a controller can compute from (q, v); the others are listed in
+    ``skipped``). Only the feedforward: SP1 keeps its own theta0 here, so the two models differ in
+    their friction and effects alone."""
     from robust_drake.identification.model import IdentifiedModel
 
-    return IdentifiedModel.from_report(report, stage).feedforward()
+    (ff,) = IdentifiedModel.from_report(report, stage).closed_loop_hooks(controller=True)["feedforward"]
+    return ff
 
 
 def true_arm_effects():

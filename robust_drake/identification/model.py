@@ -1,9 +1,10 @@
 """The identified model: the one object that passes from identification to control.
 
-A repair (``repair.run_repair``) ends in an :class:`IdentifiedModel`; a controller gets its
-feedforward from :meth:`IdentifiedModel.feedforward`, a plant its effect blocks from
-:meth:`IdentifiedModel.add_effect_blocks` / :meth:`IdentifiedModel.closed_loop_effects`. Nothing
-downstream parses ``report.json`` by key names any more.
+A repair (``repair.run_repair``) ends in an :class:`IdentifiedModel`; it goes into a closed loop
+through one door, :meth:`IdentifiedModel.closed_loop_hooks` (what ``ClosedLoopConfig(model=...,
+plant_model=...)`` uses): the plant side (rigid body, friction, effect blocks and plant changes)
+and the controller side (model, feedforward, compensation blocks). Nothing downstream parses
+``report.json`` by key names any more.
 
 Convention (the repair's, ``fitting.py``): the measured joint torque [N m] is
 
@@ -307,7 +308,7 @@ class IdentifiedModel:
         return out
 
     # ------------------------------------------------------------------ closed loop
-    def feedforward(self):
+    def _feedforward(self):
         """``f(q, v) -> torques`` [N m]: what the motors must add for the identified friction
         ``fc_j sgn(v_j) + fv_j v_j`` and the effects a controller can compute from (q, v) alone.
         Effects that need the torque, the acceleration or the log's clock, that change the plant
@@ -338,7 +339,8 @@ class IdentifiedModel:
     def closed_loop_hooks(self, *, plant: bool = False, controller: bool = True, sample_period=None,
                           rigid_body: bool = True) -> dict:
         """Fields of :class:`robust_drake.diagram.ClosedLoopConfig` that put the whole model into a
-        closed loop (what ``ClosedLoopConfig(model=..., plant_model=...)`` uses):
+        closed loop (what ``ClosedLoopConfig(model=..., plant_model=...)`` uses): the one door from
+        an identified model to a loop.
 
         * ``plant=True`` -- the simulated arm IS this model: ``plant_setup`` realises the
           identified base parameters as a rigid body (nearest one in the set when the centre is
@@ -346,29 +348,32 @@ class IdentifiedModel:
           (rotor inertia, payload: ``Effect.apply_to_context``); ``plant_friction`` is the
           identified Coulomb/viscous friction; ``effects`` are every other effect's block
           (force, torque-dependent, time-dependent, the delay line and stateful ones such as
-          presliding friction);
+          presliding friction). Effects and setups are :func:`robust_drake.effects.effect_hooks`
+          of :meth:`effect_terms`;
         * ``controller=True`` -- the controller's model: ``controller_params["model"]`` (SP1,
-          SP2, CI eq. 15 and BR take theta0 and their set from it), ``feedforward`` (friction
-          and the stateless (q, v) effects, :meth:`feedforward`), ``compensation`` (stateful
-          effects as their blocks, fed the measured q and estimated v, their force cancelled in
-          the command) and ``not_compensated`` ({kind: reason}).
+          SP2, CI eq. 15 and BR take theta0 and their set from it), ``feedforward`` (one term
+          ``f(q, v) -> torques`` [N m]: the friction ``fc_j sgn(v_j) + fv_j v_j`` and the
+          stateless (q, v) effects; ``f.terms`` names those effects, ``f.skipped`` the others and
+          ``f.reasons`` why), ``compensation`` (stateful effects as their blocks, fed the measured
+          q and estimated v, their force cancelled in the command) and ``not_compensated``
+          ({kind: reason}).
 
         The delay line samples at ``sample_period`` (None: the loop's period); ``rigid_body=False``
         leaves the rigid-body setup out (a caller that sets the inertias itself, e.g. a plant drawn
         from the set: its setup first, then these)."""
+        from robust_drake.effects import block_factory, effect_hooks
+
         out: dict = {}
+        terms = self.effect_terms()
         if plant:
+            hooks = effect_hooks(terms, sample_period)
             out["plant_friction"] = {"coulomb": np.asarray(self.coulomb, float).tolist(),
                                      "viscous": np.asarray(self.viscous, float).tolist()}
-            out["plant_setup"] = ([self._rigid_body_setup()] if rigid_body else []) + [
-                (lambda p, c, e=eff, prm=prm: e.apply_to_context(p, c, prm))
-                for eff, prm in self.effect_terms() if eff.modifies_plant]
-            out["effects"] = [(lambda ctx, e=eff, prm=prm: e.block(ctx.n, prm, sample_period=sample_period or getattr(ctx, "period", 1e-3)))
-                              for eff, prm in self.effect_terms() if not eff.modifies_plant]
+            out["plant_setup"] = ([self._rigid_body_setup()] if rigid_body else []) + hooks["plant_setup"]
+            out["effects"] = hooks["effects"]
         if controller:
-            ff = self.feedforward()
-            comp = [(lambda ctx, e=eff, prm=prm: e.block(ctx.n, prm, sample_period=sample_period or getattr(ctx, "period", 1e-3)))
-                    for eff, prm in self.effect_terms() if compensation_role(eff) == "block"]
+            ff = self._feedforward()
+            comp = [block_factory(eff, prm, sample_period) for eff, prm in terms if compensation_role(eff) == "block"]
             out.update(controller_params={"model": self}, feedforward=[ff], compensation=comp,
                        not_compensated={k: r for k, r in ff.reasons.items() if r not in ("block",)})
         return out
@@ -385,25 +390,6 @@ class IdentifiedModel:
         setup = plant_setup(reg, pi)
         setup.info = info
         return setup
-
-    # ------------------------------------------------------------------ plant side
-    def add_effect_blocks(self, builder, plant, tau_port, sample_period=None):
-        """Sum ``tau_port`` and the force-type effect blocks into the plant's applied
-        generalized force (``effects.add_effect_blocks``); returns the added blocks."""
-        from robust_drake.effects import add_effect_blocks
-
-        return add_effect_blocks(builder, plant, tau_port, self.effect_terms(), sample_period=sample_period)
-
-    def closed_loop_effects(self, sample_period: float | None = None) -> list:
-        """Block factories ``f(ctx) -> LeafSystem`` for ``ClosedLoopConfig.effects``: every effect
-        with a block. A model with plant-modifying effects (rotor inertia, payload) is refused
-        rather than losing them: use ``closed_loop_hooks(plant=True)`` (or
-        ``ClosedLoopConfig(plant_model=model)``), which also applies those."""
-        changing = [e.kind for e, _ in self.effect_terms() if e.modifies_plant]
-        if changing:
-            raise RobustDrakeError(f"the model has plant-modifying effects {changing}, which no block realises: "
-                                   "use closed_loop_hooks(plant=True) or ClosedLoopConfig(plant_model=model)")
-        return self.closed_loop_hooks(plant=True, controller=False, sample_period=sample_period)["effects"]
 
 
 @dataclass

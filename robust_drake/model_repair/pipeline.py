@@ -673,10 +673,3 @@ def effects_from_report(report: dict) -> list:
     """The chosen effects of a repair report as ``[(Effect, parameters), ...]`` (via
     :class:`~robust_drake.identification.model.IdentifiedModel`)."""
     return IdentifiedModel.from_report(report).effect_terms()
-
-
-def closed_loop_effects(report: dict, sample_period: float = 1e-3) -> list:
-    """Plant-side effect block factories ``f(ctx) -> LeafSystem`` for ``ClosedLoopConfig.effects``
-    (:meth:`IdentifiedModel.closed_loop_effects`). A model with plant-modifying effects (rotor_inertia,
-    payload) is refused: ``ClosedLoopConfig(plant_model=report_path)`` applies them too."""
-    return IdentifiedModel.from_report(report).closed_loop_effects(sample_period)
