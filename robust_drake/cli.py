@@ -24,6 +24,7 @@ import json
 import sys
 
 from robust_drake.errors import RobustDrakeError
+from robust_drake.tables import format_table  # noqa: F401 - the subcommands' import
 
 # Order = order in ``robust-drake --help``. A module listed here must exist.
 COMMAND_MODULES = [
@@ -188,16 +189,6 @@ def print_json(obj) -> None:
 
     text = json.dumps(strict_json(obj), default=default, indent=2, allow_nan=False)
     sys.stdout.write(text + "\n")
-
-
-def format_table(rows: list[list], header: list[str], floatfmt: str = "{:.4g}") -> str:
-    """A plain fixed-width text table (no extra dependency)."""
-    cells = [[(floatfmt.format(c) if isinstance(c, float) else str(c)) for c in r] for r in rows]
-    widths = [max(len(h), *(len(r[i]) for r in cells)) if cells else len(h) for i, h in enumerate(header)]
-    line = "  ".join(h.rjust(w) for h, w in zip(header, widths))
-    sep = "  ".join("-" * w for w in widths)
-    body = ["  ".join(c.rjust(w) for c, w in zip(r, widths)) for r in cells]
-    return "\n".join([line, sep, *body])
 
 
 def non_negative(kind, option):

@@ -252,7 +252,7 @@ def _fmt(x) -> str:
 
 def format_paper_table(table: int, rows: list[dict]) -> str:
     """The paper's layout: one line per algorithm, each cell ``simulated (published)``."""
-    from robust_drake.cli import format_table
+    from robust_drake.tables import format_table
 
     header = ["Algorithm", "|error1|", "maxerr1", "|error2|", "maxerr2", "|error_task|", "maxerr_task"]
     body = []

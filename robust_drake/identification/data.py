@@ -57,6 +57,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from robust_drake.errors import DataError
+from robust_drake.identification.input_checks import n_effective  # noqa: F401 - its home before
 
 DEFAULT_CUTOFF_HZ = 8.0
 DEFAULT_FILTER_ORDER = 4
@@ -234,15 +235,6 @@ class IdentData:
 
 
 # --------------------------------------------------------------------------- reading
-def n_effective(data: IdentData) -> float:
-    """Effective (independent) samples per joint, N_eff = N min(1, 2 f_c dt): the low-pass at
-    f_c [Hz] leaves about 2 f_c independent samples per second of data sampled every dt [s]."""
-    fc = data.filter.cutoff_hz
-    if fc is None:
-        return float(data.N)
-    return float(data.N) * min(1.0, 2.0 * fc * data.dt)
-
-
 def pooled_autocorrelation(residual: np.ndarray, segment: np.ndarray | None = None) -> np.ndarray:
     """Autocorrelation rho (L, n) of a residual (N, n) at lags 0..L-1, pooled over the gap-free
     segments (sum of lagged products of the de-meaned segments over their sum of squares, by FFT);

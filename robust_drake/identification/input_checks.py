@@ -43,6 +43,16 @@ MIN_ROWS_PER_PARAM = 5.0
 WARN_ROWS_PER_PARAM = 20.0
 
 
+def n_effective(data: "IdentData") -> float:
+    """Effective (independent) samples per joint, N_eff = N min(1, 2 f_c dt): the low-pass at
+    f_c [Hz] leaves about 2 f_c independent samples per second of data sampled every dt [s]."""
+    fc = data.filter.cutoff_hz
+    if fc is None:
+        return float(data.N)
+    return float(data.N) * min(1.0, 2.0 * fc * data.dt)
+
+
+
 def _digest(path: str) -> str:
     h = hashlib.sha256()
     with open(path, "rb") as fh:
@@ -237,8 +247,6 @@ def sample_budget(data, n_params: int) -> tuple[float, str | None]:
     Below :data:`MIN_ROWS_PER_PARAM` -> DataError (the fit can match noise exactly and its error
     says nothing); below :data:`WARN_ROWS_PER_PARAM` -> a warning string.
     """
-    from robust_drake.identification.data import n_effective
-
     rows = data.n * n_effective(data)
     per = rows / max(n_params, 1)
     rule = (f"{data.N} samples x {data.n} joints at {data.dt * 1e3:.3g} ms, filtered at "
