@@ -236,7 +236,8 @@ def repair(fit: Any, robot: str, *, validate: Any = None,
            cutoff_hz: float | None = None, effects: Sequence[str] | None = None,
            min_gain: float | None = None, max_effects: int = 4, consistent: bool = True,
            instruments: bool = True, nominal: bool = True, replay: bool = True,
-           plots: bool = True, sigma_rel: float | None = None, overwrite: bool = False,
+           plots: bool = True, sigma_rel: float | None = None, level: float | None = None,
+           overwrite: bool = False,
            progress: Callable[[str], None] | None = None) -> "RepairResult":
     """Identify a model from measured data, find and add the missing effects, report before/after.
 
@@ -281,6 +282,10 @@ def repair(fit: Any, robot: str, *, validate: Any = None,
         Write the residual and replay plots into ``out``.
     sigma_rel : float, optional
         Relative trust in the URDF's base parameters for that comparison (None: 0.05).
+    level : float, optional
+        Confidence level of every decision made from the data (accept an effect, call a model
+        worse than the baseline, flag a setup change): paired block tests, Holm over the joints,
+        one-sided at (1 - level) / 2 (None: 0.95).
     overwrite : bool
         Replace an earlier report in ``out`` (False refuses, like the CLI without ``--force``).
     progress : callable, optional
@@ -304,7 +309,8 @@ def repair(fit: Any, robot: str, *, validate: Any = None,
         opts = RepairOptions(robot=robot, torque=torque, cutoff_hz=DEFAULT_CUTOFF_HZ if cutoff_hz is None else cutoff_hz,
                              kinds=effects, min_gain=MIN_GAIN if min_gain is None else min_gain, max_effects=max_effects,
                              consistent=consistent, replay=replay, plots=plots, nominal=nominal, instruments=instruments,
-                             **({} if sigma_rel is None else {"sigma_rel": sigma_rel}))
+                             **({} if sigma_rel is None else {"sigma_rel": sigma_rel}),
+                             **({} if level is None else {"level": level}))
         return _repair_logs(fit, validate, opts, out, progress_callback(progress), overwrite)
     except OptionError as exc:
         if exc.option == "kinds":  # the API's keyword for RepairOptions.kinds

@@ -375,3 +375,25 @@ def test_force_keeps_unrelated_files_and_removes_the_old_reports_plots(sim, tmp_
     assert sorted(os.listdir(out)) == ["notes.txt", "report.json", "report.md"]
     assert (out / "notes.txt").read_text() == "mine"
     assert _leftovers(tmp_path) == []
+
+
+def test_level_reaches_every_decision_and_a_bad_level_is_one_line(sim, tmp_path, capsys):
+    """``--level`` (issue 21): the one confidence level of the selection's confirmation tests, the
+    never-worse guards and the setup-change test; outside (0, 1) it is refused under its flag."""
+    fit, val = sim
+    levels = {}
+    for level in (0.8, 0.99):
+        out = tmp_path / f"rep{level}"
+        status, _, err = _repair(capsys, fit, "--robot", ROBOT, "--validate", val, "--out", out,
+                                 "--level", level, *QUICK)
+        assert status == 0, err
+        rep = json.loads((out / "report.json").read_text())
+        assert rep["never_worse"]["level"] == level
+        assert rep["setup_change"]["level"] == level
+        alphas = [s["alpha"] for s in rep["selection"]["steps"] if isinstance(s.get("alpha"), float)]
+        # the winner of a step is confirmed at alpha / 2 or below, alpha = (1 - level) / 2
+        assert alphas and all(0 < a <= (1 - level) / 2 + 1e-12 for a in alphas)
+        levels[level] = max(alphas)
+    assert levels[0.99] < levels[0.8]
+    msg = _error(capsys, fit, "--robot", ROBOT, "--validate", val, "--out", tmp_path / "bad", "--level", 1.5, *QUICK)
+    assert "--level" in msg and "(0, 1)" in msg

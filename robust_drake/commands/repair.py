@@ -58,6 +58,9 @@ def register(subparsers) -> None:
                         "span, e.g. payload, and the joint of a torque_scale error)")
     p.add_argument("--sigma-rel", type=float, default=None, metavar="FRAC",
                    help="relative trust in the URDF's base parameters for that comparison (default 0.05)")
+    p.add_argument("--level", type=float, default=None, metavar="P",
+                   help="confidence level of every decision from the data (accept an effect, call a model worse, "
+                        "flag a setup change; paired block tests, Holm over joints; default 0.95)")
     p.add_argument("--no-replay", action="store_true", help="skip the replay through the Drake plant")
     p.add_argument("--no-plots", action="store_true", help="do not write PNG plots")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
@@ -88,6 +91,7 @@ def run(args) -> int:
             max_effects=args.max_effects, consistent=not args.no_consistent, replay=not args.no_replay,
             plots=not args.no_plots, nominal=not args.no_nominal, instruments=not args.no_instruments,
             **({} if args.sigma_rel is None else {"sigma_rel": args.sigma_rel}),
+            **({} if args.level is None else {"level": args.level}),
         )
     except OptionError as exc:
         raise RobustDrakeError(exc.as_flag(CLI_FLAGS.get(exc.option, exc.option))) from None

@@ -310,6 +310,10 @@ def compare_with_nominal(cf, cv, regressor, final_fit, chosen, candidates, weigh
             "rms_fit_after": _rms(cf.data.tau - predict_tau(cf, chosen + [e], th)),
             "rms_validate_after": _rms(cv.data.tau - predict_tau(cv, chosen + [e], th)),
             "effect": e,
+            # (N_val, n) [N m] validation residuals of URDF + effect and URDF alone, for the
+            # caller's paired test (not JSON: popped with "effect")
+            "residual_validate_after": cv.data.tau - predict_tau(cv, chosen + [e], th),
+            "residual_validate_before": rv_nom,
         }
     else:
         out["unexplained_shift"] = significant

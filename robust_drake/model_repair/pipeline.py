@@ -134,7 +134,7 @@ class RepairOptions:
 #: RepairOptions field (or run_repair argument) -> the command line's flag, for messages
 CLI_FLAGS = {"robot": "--robot", "torque": "--torque", "cutoff_hz": "--cutoff", "velocities": "--velocities",
              "kinds": "--effects", "min_gain": "--min-gain", "max_effects": "--max-effects",
-             "sigma_rel": "--sigma-rel", "out": "--out", "fit": "FIT.csv", "validate": "--validate",
+             "sigma_rel": "--sigma-rel", "level": "--level", "out": "--out", "fit": "FIT.csv", "validate": "--validate",
              "overwrite": "--force"}
 
 
@@ -511,7 +511,7 @@ def run_repair(fit_paths, options: RepairOptions, validate_paths=None, out_dir=N
         warnings.simplefilter("always", DataWarning)
         inp = S.load_inputs(fit_paths, validate_paths, opts, log)
         base = S.fit_baseline(inp, opts, log)
-        setup = _setup_change(inp, base, log)  # the validation run against the fit run's own held-out error
+        setup = _setup_change(inp, base, log, opts.level)  # the validation run against the fit run's own held-out error
         if validate_paths:  # validation data that the fitted baseline does not carry over to
             inp.warnings += IC.transfer_check(inp.val.tau, inp.val.tau - base.val_residual, base.fit.rms)
         est = S.choose_estimator(inp, base, opts, log)
@@ -519,7 +519,7 @@ def run_repair(fit_paths, options: RepairOptions, validate_paths=None, out_dir=N
         sel = S.resolve_torque_scale(inp, base, est, sel, opts, log)
         est, sel, guard = S.never_worse(inp, base, est, sel, opts, log, tol=opts.never_worse_tol)
         est, sel, fin, cons, replay_out = S.replay_guard(inp, base, est, sel, guard, opts, log)
-        nominal = S.compare_nominal(inp, sel, fin, guard, opts, log)
+        nominal = S.compare_nominal(inp, sel, fin, guard, opts, log, base)
     _rate_plausibility(fin.effects_out, opts.robot)
     warn_msgs = list(dict.fromkeys(recovered + inp.warnings
                                    + sorted({str(w.message) for w in caught})))
@@ -537,9 +537,9 @@ def run_repair(fit_paths, options: RepairOptions, validate_paths=None, out_dir=N
     return report
 
 
-def _setup_change(inp, base, log) -> dict:
+def _setup_change(inp, base, log, level: float | None = None) -> dict:
     """``diagnostics.setup_change_of`` on the baseline (computed once, before any effect)."""
-    sc = DG.setup_change_of(inp.cf, base.weights, base.fit.residual, inp.val, base.val_residual)
+    sc = DG.setup_change_of(inp.cf, base.weights, base.fit.residual, inp.val, base.val_residual, level=level)
     log("setup change between fit and validation: " + ("FLAGGED on joint(s) " + ", ".join(str(j + 1) for j in sc["joints"])
                                                        if sc["flagged"] else "not flagged"))
     return sc

@@ -536,7 +536,7 @@ def select_effects(inp: Inputs, base: Baseline, est: Estimator, opts, log) -> Se
     cands = all_candidates(inp.fit.n, kinds=opts.kinds, robot=opts.robot, diagnostics=diag)
     sel = forward_select(inp.cf, cands, min_gain=opts.min_gain, max_effects=opts.max_effects, progress=log,
                          weights=base.weights, icache=est.instruments(),
-                         context=PhysicalContext.from_data(inp.fit, opts.robot))
+                         context=PhysicalContext.from_data(inp.fit, opts.robot), level=float(getattr(opts, "level", D.LEVEL)))
     chosen = list(sel.chosen)
     log(f"selection rows: gap {sel.rows.get('gap_s', 0):.3g} s (filter {sel.rows.get('filter_settling_s', 0):.3g} s"
         f" + residual correlation {sel.rows.get('correlation_time_s', 0):.3g} s), confirmation block "
@@ -714,10 +714,14 @@ def final_model(inp: Inputs, est: Estimator, sel: Selection, opts, base: Baselin
     return Final(final_fit, slices, r_val, rows, tests)
 
 
-def compare_nominal(inp: Inputs, sel: Selection, fin: Final, guard: Guard, opts, log) -> dict | None:
+def compare_nominal(inp: Inputs, sel: Selection, fin: Final, guard: Guard, opts, log,
+                    base: Baseline | None = None) -> dict | None:
     """Against the URDF's parameters: effects inside the rigid-body span (nominal.py). A named
     in-span effect is kept only if the URDF model with it validates no worse on any joint than
-    the URDF model without it (``guard.tolerance``)."""
+    the URDF model without it: the guards' rule (:class:`Rule`: paired block test at
+    ``guard.level`` against the margin ``guard.tolerance``, Holm over the effect's own joint and
+    over the others), on the validation blocks of ``base`` (computed once per repair; without
+    ``base`` cut from the URDF model's own residual)."""
     if not opts.nominal:
         return None
     from robust_drake.model_repair import nominal as NM
@@ -728,11 +732,17 @@ def compare_nominal(inp: Inputs, sel: Selection, fin: Final, guard: Guard, opts,
         f"(99 % limit {nominal['chi2_limit']:.1f}), validate {np.round(nominal['rms_validate'], 4)}")
     if named is not None:
         named.pop("effect")
-        worse = [j for j, (a, b) in enumerate(zip(named["rms_validate_after"], nominal["rms_validate"]))
-                 if a > b * (1.0 + guard.tolerance)]
+        r_after, r_before = named.pop("residual_validate_after"), named.pop("residual_validate_before")
+        blocks = base.blocks if base is not None and base.blocks is not None else validation_blocks(inp.val, r_before)
+        tests = guard.rule.compare(np.asarray(r_before, float) ** 2, np.asarray(r_after, float) ** 2, blocks.ids,
+                                   [named["joint"]])
+        named["tests"] = [t.as_dict() for t in tests]
+        worse = [j for j, t in enumerate(tests) if t.worse]
         if worse:
-            why = (f"URDF model + {named['label']} validates worse on joint(s) "
-                   f"{', '.join(f'{j + 1} ({inp.joint_names[j]})' for j in worse)} than the URDF model alone")
+            t0 = tests[worse[0]]
+            why = (f"URDF model + {named['label']} validates worse than the URDF model alone on joint(s) "
+                   + ", ".join(f"{j + 1} ({inp.joint_names[j]}) {tests[j].text()}" for j in worse)
+                   + f" ({t0.blocks} blocks of {t0.block} samples; {guard.rule.text()})")
             guard.dropped.append({"label": named["label"], "kind": named["kind"], "joint": named["joint"],
                                   "reason": why})
             log(f"never worse: dropped {named['label']}: {why}")
