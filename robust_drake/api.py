@@ -192,7 +192,7 @@ def identify(logs: Any, robot: str, *, validate: Any = None, torque: str = "tau_
         Base parameters [SI] with covariance, friction ``coulomb`` [N m] / ``viscous``
         [N m s/rad], ``estimator``; ``data["rms_validate"]`` [N m] per joint.
     """
-    from robust_drake.identification.identify import identify as _identify
+    from robust_drake.model_repair.identify import identify as _identify
 
     return _identify(logs, robot, validate=validate, torque=torque, cutoff_hz=cutoff_hz, velocities=velocities,
                      estimator=estimator, progress=progress)

@@ -42,7 +42,7 @@ from robust_drake.loop_defaults import LOOP_DEFAULTS
 from robust_drake.metrics import error_criteria, torque_statistics
 from robust_drake.models import ArmSpec, JointLimits, ROBOTS, add_arm, get_arm, set_d2r2_theta
 from robust_drake.registry import BuildContext, block_label, is_block_spec, make_block
-from robust_drake.systems.forces import add_force_blocks, sum_into_plant
+from robust_drake.forces import add_force_blocks, sum_into_plant
 from robust_drake.systems.friction import CompiledCoulombViscousFriction, FixedFrictionCompensation
 from robust_drake.systems.sensors import CompiledQuantizingEncoder, quantize
 from robust_drake.systems.sampled_reference import SampledReference
@@ -675,7 +675,7 @@ class ClosedLoop:
 
     Built in the order of the signal flow (module docstring): plant (``models.add_arm``),
     reference, optional flexibility, encoder, observer, controller, command chain (fixed friction
-    compensation, saturation), plant-side forces (``systems.forces``), loggers.
+    compensation, saturation), plant-side forces (``robust_drake.forces``), loggers.
 
     The reference source, the encoder and the plant friction are C++ blocks
     (:mod:`robust_drake.systems.sampled_reference`, :mod:`robust_drake.systems.sensors`,
@@ -882,7 +882,7 @@ class ClosedLoop:
 
     def _add_plant_forces(self, tau):
         """tau (through the flexible drive if any) + plant friction + effect blocks, summed into
-        the plant by the one force path (:mod:`robust_drake.systems.forces`)."""
+        the plant by the one force path (:mod:`robust_drake.forces`)."""
         c, builder, plant, n = self.config, self.builder, self.plant, self.n
         forces = [tau] if self.flexibility is None else self.flexibility.forces(builder, tau)
         self.effect_blocks = []

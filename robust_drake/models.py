@@ -327,14 +327,29 @@ def gravity_reaches_joints(plant, samples: int = 8, seed: int = 0) -> bool:
     return False
 
 
+def urdf_root_links(urdf_path) -> list[str]:
+    """Links of a URDF that are the child of no joint, other than ``world`` (Drake's world
+    body): one for an arm written the ROS way (no world joint), none for one with a joint to
+    ``world``. [] for a file that is not a readable URDF (the parser reports it)."""
+    import xml.etree.ElementTree as ET
+
+    path = os.fspath(urdf_path)
+    if not path.endswith(".urdf"):
+        return []
+    try:
+        root = ET.parse(path).getroot()
+    except (ET.ParseError, OSError):
+        return []
+    children = {c.get("link") for j in root.iter("joint") for c in j.findall("child")}
+    return [ln.get("name") for ln in root.iter("link") if ln.get("name") not in children and ln.get("name") != "world"]
+
+
 def root_weld_warning(robot, plant=None) -> str | None:
     """The message for a URDF whose root link has no joint to the world (it is welded at the
     identity pose, the ROS/Pinocchio convention): None when the file has a world joint. With the
     finalized ``plant``, says whether gravity then reaches any joint (if not, a vertical arm whose
     world joint was left out is being modelled in a horizontal plane). Shown on the console by
     the loader and put into the repair's report.json / report.md warnings."""
-    from robust_drake.identification.input_checks import urdf_root_links
-
     path = resolve_urdf(robot) if not isinstance(robot, pathlib.Path) else robot
     roots = urdf_root_links(path)
     if len(roots) != 1:

@@ -70,6 +70,10 @@ __all__ = [
     "PinocchioSlotineLi",
 ]
 
+#: rank cut of every fit: singular values below RANK_TOL * s_max (unit-norm columns) count as
+#: directions the data do not identify (least squares, folds, URDF comparison, effect aliases)
+RANK_TOL = 1e-6
+
 # ----------------------------------------------------------------------------- closed forms
 
 

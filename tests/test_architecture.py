@@ -111,24 +111,21 @@ def test_no_import_cycle():
     assert cyc is None, "import cycle: " + " -> ".join(cyc)
 
 
-#: The layer order, bottom first (issue 22): a module may import its own layer and the layers
-#: below, never one above (function-level imports count, ``if TYPE_CHECKING`` ones do not). A
+#: The layer order, bottom first (issue 22; each package folder in one layer, so the folders stack
+#: too): a module may import its own layer and the layers below, never one above (function-level imports count, ``if TYPE_CHECKING`` ones do not). A
 #: module belongs to the longest prefix that names it.
 LAYERS = [
     ["robust_drake.errors", "robust_drake.robots_dir", "robust_drake.allocator", "robust_drake.divergence",
      "robust_drake.extras", "robust_drake.log", "robust_drake.joints",
-     "robust_drake.tables"],
+     "robust_drake.tables", "robust_drake.forces"],
     ["robust_drake.description", "robust_drake.kinematics", "robust_drake.loop_defaults", "robust_drake.metrics",
      "robust_drake.parallel", "robust_drake.analysis"],
     ["robust_drake.models", "robust_drake.registry", "robust_drake.regressor", "robust_drake.uncertainty",
-     "robust_drake.trajectories", "robust_drake.plotting", "robust_drake.identification.input_checks"],
-    ["robust_drake.identification"],  # the estimators: logs, data, fits
-    ["robust_drake.systems"],  # plant-side blocks
-    ["robust_drake.effects"],  # the effect library
-    ["robust_drake.identification.model", "robust_drake.identification.export"],  # the product
+     "robust_drake.trajectories", "robust_drake.plotting"],
+    ["robust_drake.effects"],  # the effect library: regressor columns and their Drake blocks
+    ["robust_drake.identification"],  # logs, data, fits; the product (model, export)
+    ["robust_drake.systems", "robust_drake.diagram", "robust_drake.viz"],  # blocks, controllers, loop
     ["robust_drake.synthetic", "robust_drake.model_repair"],
-    ["robust_drake.identification.identify"],  # plain identification runs the repair's first stages
-    ["robust_drake.systems.controllers", "robust_drake.diagram", "robust_drake.viz"],
     ["robust_drake.experiments", "robust_drake.scenario", "robust_drake.excitation"],
     ["robust_drake.batch", "robust_drake.montecarlo"],
     ["robust_drake.api", "robust_drake.cli", "robust_drake.commands", "robust_drake"],
@@ -153,7 +150,8 @@ def upward_imports(graph: dict[str, set[str]]) -> set[tuple[str, str]]:
 
 
 def test_upward_imports_are_seen():
-    assert layer_of("robust_drake.identification.model") > layer_of("robust_drake.identification.data")
+    assert layer_of("robust_drake.identification.model") > layer_of("robust_drake.effects.base")
+    assert layer_of("robust_drake.systems.controllers.spong") == layer_of("robust_drake.systems")
     graph = {"robust_drake.errors": {"robust_drake.api"}, "robust_drake.api": {"robust_drake.errors"}}
     assert upward_imports(graph) == {("robust_drake.errors", "robust_drake.api")}
 

@@ -193,7 +193,7 @@ def test_backlash_gap_is_crossed_in_the_free_flight_time(tmp_path):
     from pydrake.trajectories import PiecewisePolynomial
 
     from robust_drake.models import add_arm
-    from robust_drake.systems.forces import add_force_blocks, sum_into_plant
+    from robust_drake.forces import add_force_blocks, sum_into_plant
 
     urdf = tmp_path / "one_link.urdf"
     urdf.write_text(_ONE_LINK)

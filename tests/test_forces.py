@@ -2,7 +2,7 @@
 
 The closed loop (``diagram.ClosedLoop``), the replay (``replay.build_replay_diagram``) and the
 simulated experiment (``simulated.build_experiment``) build their plant-side forces through
-``systems.forces``; for the same model (Coulomb + viscous friction and a cogging torque) and the
+``forces``; for the same model (Coulomb + viscous friction and a cogging torque) and the
 same plant state they must apply the same generalized force besides the torque command, equal to
 the model written out by hand here.  The three use different friction sign laws (sharp sign in
 the closed loop, tanh with v_eps = 0.01 rad/s in the simulated experiment, 0.05 rad/s in the
@@ -125,7 +125,7 @@ def test_sum_into_plant_single_source_is_connected_directly():
     from pydrake.systems.primitives import ConstantVectorSource
 
     from robust_drake.models import add_arm
-    from robust_drake.systems.forces import sum_into_plant
+    from robust_drake.forces import sum_into_plant
 
     b = DiagramBuilder()
     plant, _ = add_arm(b, ROBOT)

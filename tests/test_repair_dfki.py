@@ -265,7 +265,7 @@ def test_cli_rejects_bad_input_with_a_message(tmp_path, capsys):
 
 
 def test_demo_finds_the_hidden_effect_and_replay_improves(tmp_path):
-    from robust_drake.model_repair.pipeline import run_repair_demo
+    from robust_drake.synthetic.simulated import run_repair_demo
 
     rep = run_repair_demo(str(tmp_path), progress=None)
     truth = rep["truth"]

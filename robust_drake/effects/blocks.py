@@ -16,10 +16,10 @@ def effect_force_blocks(effects, n, sample_period=None) -> list:
 def add_effect_blocks(builder, plant, tau_port, effects, sample_period=None, extra_blocks=()):
     """Connect ``tau_port`` (commanded torque, n) plus every force-type effect block (then the
     already built ``extra_blocks``) into the plant's ``applied_generalized_force`` input through
-    :func:`robust_drake.systems.forces.sum_into_plant`. ``effects`` = [(Effect, parameters),
+    :func:`robust_drake.forces.sum_into_plant`. ``effects`` = [(Effect, parameters),
     ...]; plant-modifying effects must already have been applied (``load_plant(robot,
     effects)``). Returns the list of added blocks."""
-    from robust_drake.systems.forces import add_force_blocks, sum_into_plant
+    from robust_drake.forces import add_force_blocks, sum_into_plant
 
     blocks = effect_force_blocks(effects, plant.num_velocities(), sample_period) + list(extra_blocks)
     ports = add_force_blocks(builder, plant, blocks, tau_port)

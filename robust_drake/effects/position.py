@@ -288,9 +288,9 @@ def _joint_kinds(robot, n: int):
     """(prismatic joint indices, regressor) of ``robot`` (((), None) without a robot)."""
     if robot is None:
         return (), None
-    from robust_drake.identification.least_squares import load_regressor
+    from robust_drake.regressor import InverseDynamicsRegressor
 
-    reg = load_regressor(robot)
+    reg = InverseDynamicsRegressor.from_robot(robot)  # gravity columns only: the URDF damping is moot
     joints = [reg.plant.get_joint(ji) for ji in reg.plant.GetJointIndices()
               if reg.plant.get_joint(ji).num_velocities() == 1]
     prismatic = tuple(jt.velocity_start() for jt in joints if "prismatic" in jt.type_name())
@@ -302,8 +302,8 @@ def gravity_aliases(regressor, joint: int, terms, samples: int = 256, seed: int 
     ``joint`` (and of the terms kept before them): Y_j(q, 0, 0) of the base regressor at
     ``samples`` random configurations (revolute angles uniform in [-pi, pi], prismatic positions
     in their limits or [-1, 1] m); a term whose least-squares residual on those columns is below
-    ``least_squares.RANK_TOL`` of its norm is an identity of the model (noise free), not a fit."""
-    from robust_drake.identification.least_squares import RANK_TOL
+    ``regressor.RANK_TOL`` of its norm is an identity of the model (noise free), not a fit."""
+    from robust_drake.regressor import RANK_TOL
 
     n = regressor.n
     rng = np.random.default_rng(seed)

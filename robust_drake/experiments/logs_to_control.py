@@ -185,7 +185,7 @@ def identify(cfg: LogsToControlConfig, out_dir: str):
     errors in variables, else least squares; ``uncertainty.confidence`` then uses the matching
     covariance). The log is the one a user would bring: the demo and a real arm follow one path
     (simulate-experiment -> identify -> control)."""
-    from robust_drake.identification.identify import identify as identify_logs
+    from robust_drake.model_repair.identify import identify as identify_logs
 
     return identify_logs([simulate_log(cfg, out_dir)], cfg.robot, progress=lambda *_: None)
 

@@ -125,21 +125,6 @@ def check_urdf_inertials(urdf_path) -> None:
             )
 
 
-def urdf_root_links(urdf_path) -> list[str]:
-    """Links of a URDF that are the child of no joint, other than ``world`` (Drake's world
-    body): one for an arm written the ROS way (no world joint), none for one with a joint to
-    ``world``. [] for a file that is not a readable URDF (the parser reports it)."""
-    path = os.fspath(urdf_path)
-    if not path.endswith(".urdf"):
-        return []
-    try:
-        root = ET.parse(path).getroot()
-    except (ET.ParseError, OSError):
-        return []
-    children = {c.get("link") for j in root.iter("joint") for c in j.findall("child")}
-    return [ln.get("name") for ln in root.iter("link") if ln.get("name") not in children and ln.get("name") != "world"]
-
-
 def prismatic_warnings(plant) -> list[str]:
     """A warning per prismatic joint: its position column is read as metres, its torque as N."""
     from pydrake.multibody.tree import JointIndex

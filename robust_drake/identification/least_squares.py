@@ -29,10 +29,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from robust_drake.errors import DataError
+from robust_drake.regressor import RANK_TOL  # noqa: F401  (the fits' rank cut, used by name from here)
 from robust_drake.identification.data import DataWarning, IdentData, zero_phase_lowpass
 
-#: singular values below RANK_TOL * s_max (unit-norm columns) count as unidentifiable directions
-RANK_TOL = 1e-6
 #: condition number above which the excitation is called poor (warning)
 COND_WARN = 1e4
 

@@ -627,37 +627,6 @@ def fit_paths_are_files(paths) -> bool:
     return all(isinstance(p, (str, os.PathLike)) and os.path.isfile(p) for p in paths)
 
 
-def run_repair_demo(out_dir: str, kind: str = "stribeck", seed: int = 0, progress=None, **options) -> dict:
-    """The whole loop on a built-in simulated experiment (no shared data needed).
-
-    The "true" arm (DFKI C.1 URDF + baseline friction + one hidden ``kind`` effect from
-    ``simulated.HIDDEN_CASES``, PD-tracked Fourier excitation, 14-bit encoder, torque noise)
-    writes a fit and a validation CSV into ``out_dir``; :func:`run_repair` identifies the
-    baseline, finds the missing effect, and writes the report there. Returns the report with an
-    extra ``"truth"`` entry (what was hidden) so a caller can compare.
-    """
-    from robust_drake.synthetic.simulated import hidden_effect_case
-
-    os.makedirs(out_dir, exist_ok=True)
-    from robust_drake.log import progress_callback
-
-    log = progress_callback(progress)
-    fit_csv, val_csv, truth = hidden_effect_case(kind, seed=seed, out_dir=out_dir)
-    log(f"simulated experiment: hidden {truth['kind']} on "
-        f"{'all joints' if truth['joint'] is None else 'joint ' + str(truth['joint'] + 1)} {truth['parameters']}")
-    opts = RepairOptions(robot=truth["robot"], **options)
-    rep = run_repair([fit_csv], opts, validate_paths=[val_csv], out_dir=out_dir, progress=log)
-    attach_truth(rep, {k: v for k, v in truth.items() if k in ("kind", "joint", "parameters", "robot", "friction")}, out_dir)
-    fmt = lambda xs: "[" + ", ".join(f"{x:.4f}" for x in xs) + "]"  # noqa: E731
-    log(f"validation RMS torque error [N m]: baseline {fmt(rep['baseline']['rms_validate'])} -> "
-        f"repaired {fmt(rep['final']['rms_validate'])}")
-    for e in rep["effects"]:
-        where = "all joints" if e["joint"] is None else f"joint {e['joint'] + 1} ({rep['joint_names'][e['joint']]})"
-        log(f"found {e['kind']} on {where}: "
-            + ", ".join(f"{k} = {v:.4g}" for k, v in e["parameters"].items() if isinstance(v, float)))
-    return rep
-
-
 def attach_truth(rep: dict, truth: dict, out_dir: str | None) -> dict:
     """Simulated data: put what the simulator was given (``truth``: ``kind``, ``joint``,
     ``parameters``, optionally ``friction`` = {"coulomb", "viscous"}) into the report as

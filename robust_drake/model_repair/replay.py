@@ -7,7 +7,7 @@ For every window [t_k, t_k + H] (``horizon``) the plant state is reset to the me
 
 The position error q_sim - q_measured over each window is the replay error; ``before`` uses the
 baseline (rigid body + Coulomb + viscous), ``after`` the repaired model with its effect blocks
-(``effects.effect_force_blocks``), all summed by ``systems.forces.sum_into_plant``. Friction in
+(``effects.effect_force_blocks``), all summed by ``forces.sum_into_plant``. Friction in
 the plant is ``systems.friction.CoulombViscousFriction`` with the smooth sign tanh(qd / v_eps)
 (v_eps = ``REPLAY_V_EPS`` = 0.05 rad/s) so an error-controlled integrator can step through
 reversals.
@@ -30,7 +30,7 @@ REPLAY_V_EPS = 0.05  # rad/s, tanh width of the replay friction (kept from the f
 def build_replay_diagram(robot, data: IdentData, coulomb, viscous, effects=(), inertias=None,
                          sample_period=None):
     """Diagram: tau source (first-order hold of data.tau) + friction + effect blocks -> plant,
-    through the one force path (:mod:`robust_drake.systems.forces`; effect blocks with a ``tau``
+    through the one force path (:mod:`robust_drake.forces`; effect blocks with a ``tau``
     input see the measured torque).
 
     ``effects`` = [(Effect, parameters), ...]; ``inertias`` = (body_names, pi) or None (set in
@@ -40,7 +40,7 @@ def build_replay_diagram(robot, data: IdentData, coulomb, viscous, effects=(), i
     from pydrake.trajectories import PiecewisePolynomial
 
     from robust_drake.effects import effect_force_blocks, load_plant
-    from robust_drake.systems.forces import add_force_blocks, sum_into_plant
+    from robust_drake.forces import add_force_blocks, sum_into_plant
     from robust_drake.systems.friction import CoulombViscousFriction
 
     builder = DiagramBuilder()
