@@ -11,6 +11,10 @@ ratio where both ran (the conservatism of the head-only multiplier), and the clo
     PYTHONPATH=. python benchmarks/bench_ellipsoid.py --samples 5,20,100,300,1000,3000 --runs drake:clarabel \
         --chordal-max 1000        # the energy-vs-chordal table of BUILD_NOTES
 
+``--relax 20:10,15,19`` measures the idea of constraint generation over samples: the optimal trace when
+only k of the n samples keep their uncertainty (their LMIs; the others' deltas fixed at 0, a relaxation),
+as a ratio to the full SDP.
+
 CSDP is not in the default runs: it works on a dense Schur complement of the program's (doubled: free
 variables become two slacks) variables, ~2.5 (2 nv)^2 doubles (measured 19-21 GB at 200 samples, nv =
 16k, killed by the kernel). Asked for with ``--runs ...,drake:csdp`` it runs only where that estimate is
@@ -42,6 +46,26 @@ def csdp_gb(model, form) -> float:
     return 2.5 * (2 * data.nv) ** 2 * 8 / 1e9
 
 
+def relaxation(n: int, ks: list) -> None:
+    """Optimal trace with only k of the n samples' uncertainties (their chordal LMIs) kept, the other
+    samples' deltas fixed at 0: the relaxation that constraint generation over samples would start
+    from. Ratio 1 would mean the left-out samples' LMIs are not binding."""
+    from robust_drake.uncertainty.regression import UncertaintyModel
+
+    data = simulate_identification(n, seed=0)
+    model = build_uncertainty_model(imi_scara_regressor, data["q"], data["qd"], data["qdd"], data["tau"], CI_BOUNDS)
+    full = solve_ellipsoid(model, backend="direct", certify_draws=0).trace
+    print(f"n = {n}: full chordal SDP trace {full:.6g}")
+    rng = np.random.default_rng(0)
+    for k in ks:
+        keep = rng.choice(n, k, replace=False)
+        coeffs = np.zeros_like(model.coeffs)
+        coeffs[keep] = model.coeffs[keep]
+        sub = UncertaintyModel(model.D0, model.tau0, coeffs, model.scalar_names, model.delta_max)
+        tr = solve_ellipsoid(sub, backend="direct", certify_draws=0).trace
+        print(f"  {k:>5} of {n} samples' LMIs: trace {tr:.6g}, ratio {tr / full:.4f}", flush=True)
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--samples", default="5,10,20,50,100,200,500,1000")
@@ -53,7 +77,12 @@ def main():
     ap.add_argument("--draws", type=int, default=1000)
     ap.add_argument("--chordal-max", type=int, default=100000, help="largest sample count for the chordal SDP")
     ap.add_argument("--no-energy", action="store_true", help="skip the closed-form energy bound")
+    ap.add_argument("--relax", default="", help="n:k1,k2,..: relaxation with k of n samples' LMIs")
     a = ap.parse_args()
+    if a.relax:
+        n, ks = a.relax.split(":")
+        relaxation(int(n), [int(k) for k in ks.split(",")])
+        return
     counts = [int(x) for x in a.samples.split(",")]
     full_counts = {int(x) for x in a.full.split(",") if x}
     runs = [tuple(r.split(":")) for r in a.runs.split(",")]

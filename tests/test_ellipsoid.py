@@ -228,3 +228,16 @@ def test_energy_bound_on_the_imi_data_is_sound_at_1000_samples_and_measured_agai
 def test_auto_formulation_keeps_the_sdp_for_few_samples():
     r = solve_ellipsoid(_toy(K=4), formulation="auto")
     assert r.formulation == "chordal"
+
+
+def test_dropping_a_samples_lmi_is_a_strict_relaxation():
+    """Why constraint generation over samples cannot stop early (module docstring): every sample's
+    LMI is binding; with one sample's uncertainty (its LMI) left out the optimum is strictly smaller."""
+    M = _toy(K=4)
+    full = solve_ellipsoid(M, formulation="chordal", certify_draws=0)
+    for k in range(M.n_samples):
+        co = M.coeffs.copy()
+        co[k] = 0.0
+        sub = solve_ellipsoid(UncertaintyModel(M.D0, M.tau0, co, M.scalar_names, M.delta_max),
+                              formulation="chordal", certify_draws=0)
+        assert sub.trace < full.trace * (1 - 1e-3)
