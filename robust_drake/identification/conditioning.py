@@ -61,10 +61,7 @@ JITTER_RESIDUAL_MAX = 0.25
 IRREGULAR_WARN = 0.05
 #: stiction: speed threshold [rad/s], minimum duration [s], torque change as a fraction of the range
 STICK_SPEED = 0.01
-#: 0.02 s (50 samples at 2500 Hz, 10 at 500 Hz, 2 at 100 Hz): short stops at reversals (10-150 ms)
-#: stick too, and left in they draw low-velocity friction kinds (issue 21: 0.1 s let smooth_coulomb
-#: through on 7 of 30 no-effect UR5 seeds at 500 Hz)
-STICK_MIN_S = 0.02
+STICK_MIN_S = 0.1
 STICK_TORQUE_FRAC = 0.05
 #: warn when a joint is stuck on more than this fraction of its samples
 STICK_WARN_FRAC = 0.10
