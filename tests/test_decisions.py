@@ -38,45 +38,25 @@ def test_false_worse_and_false_better_rates_are_at_the_stated_level(phi):
     assert worse / seeds <= 0.05 and better / seeds <= 0.05, (worse, better)
 
 
-def _null_and_gain_p(blocks, pairs, seed, gain=None):
-    """One-sided p_better of ``pairs`` AR(1) comparisons (correlation time 20 rows, blocks of 60):
-    a shared part plus each model's own (a null), or, with ``gain``, a reference that misses a
-    term of 10x the noise whose size swings with a slow envelope (a cogging seen at speed) and a
-    candidate that misses a tenth of it."""
+@pytest.mark.parametrize("blocks", [4, 24])
+def test_false_better_at_the_selection_levels_with_few_blocks(blocks):
+    """The selection tests at one-sided alpha / 2 and alpha / 6 (decisions at 1.25 % and 0.42 %), on
+    confirmation blocks of 4 and more blocks. Null: two models whose errors have one distribution
+    (a shared AR(1) part and each its own, correlation time 20 rows), blocks of 3 correlation
+    times. 4000 pairs: binomial sd 0.18 % at 1.25 %, so the bound (nominal + 3.5 sd) fails the
+    delta-method ratio form (5.3-5.7 % at 4 blocks, measured) and holds for the paired differences."""
     phi = np.exp(-1.0 / 20.0)
-    L = 60
-    N = blocks * L
-    ids = block_ids(None, N, L)
-    rng = np.random.default_rng(seed)
-    t = np.arange(N)
+    L, pairs = 60, 4000
+    ids = block_ids(None, blocks * L, L)
+    rng = np.random.default_rng(7)
     p = np.empty(pairs)
     for k in range(pairs):
-        if gain is None:
-            common = _ar1(rng, N, phi)
-            a, b = common + 0.7 * _ar1(rng, N, phi), common + 0.7 * _ar1(rng, N, phi)
-        else:
-            amp = 3.0 * np.abs(np.sin(2 * np.pi * t / (N / 1.5) + rng.uniform(0, np.pi))) ** 3
-            noise = 0.3 * _ar1(rng, N, phi)
-            a, b = noise + amp * np.sin(t / 3.0), noise + gain * amp * np.sin(t / 3.0)
+        common = _ar1(rng, blocks * L, phi)
+        a, b = common + 0.7 * _ar1(rng, blocks * L, phi), common + 0.7 * _ar1(rng, blocks * L, phi)
         p[k] = paired_test(a**2, b**2, ids).p_better
-    return p
-
-
-def test_false_better_at_the_selection_levels_with_four_blocks():
-    """The selection decides at one-sided alpha / 2 and alpha / 6 (1.25 % and 0.42 %) on a
-    confirmation block of 10 s runs: 4 blocks. 4000 null pairs (binomial sd 0.18 % at 1.25 %): the
-    bound nominal + 3.5 sd fails the delta-method ratio form (4.6-5.7 % measured) and holds here."""
-    p = _null_and_gain_p(4, 4000, seed=7)
     for alpha in (0.0125, 0.025 / 6):
-        bound = alpha + 3.5 * np.sqrt(alpha * (1 - alpha) / len(p))
+        bound = alpha + 3.5 * np.sqrt(alpha * (1 - alpha) / pairs)
         assert np.mean(p < alpha) <= bound, (alpha, float(np.mean(p < alpha)))
-
-
-def test_a_gain_in_a_few_blocks_is_found_with_four_blocks():
-    """A 10x-noise term the candidate explains (90 %), its size swinging from block to block:
-    found at alpha / 6 in most seeds (the block differences c_b - a_b find it in 12 %)."""
-    p = _null_and_gain_p(4, 200, seed=8, gain=0.1)
-    assert np.mean(p < 0.025 / 6) >= 0.8, float(np.mean(p < 0.025 / 6))
 
 
 def test_a_real_gain_is_detected_and_its_interval_covers_it():

@@ -10,25 +10,23 @@ per-block values (a paired test: both series are evaluated on the same blocks, s
 models share -- noise, the motion -- cancels).
 
 Statistic (per joint j). With e_ref, e_new the squared errors per row and, per block b, their
-means a_b, c_b (B blocks), the paired t-test on the block log ratios l_b = log(c_b / a_b):
+means a_b, c_b (B blocks), the mean-square ratio
 
-    R = exp(mean_b l_b)  (the blocks' typical mean-square ratio),   d = sqrt(R) - 1,
-    se = std_b(l_b) / sqrt(B) sqrt(1 + 2 max(r_1, 0)),   interval  R exp(+- t_{B-1, (1+level)/2} se),
+    R = sum_b c_b / sum_b a_b,     relative RMS change  d = sqrt(R) - 1,
 
-with r_1 the lag-1 autocorrelation of the l_b (neighbouring blocks are not quite independent),
+has the standard error of the paired block differences d_b = c_b - a_b (R - 1 = mean(d) / mean(a)),
 
-mapped to d by the square root (monotone). Under "no difference" the two models' errors are
-exchangeable in every block, so l_b is symmetric about 0 whatever the block's size: the test holds
-its level with few blocks and with blocks of unequal error. Two other forms were measured and
-dropped (AR(1) nulls, correlation time 20 rows, blocks of 60; ``tests/test_decisions.py``): the
-delta-method ratio sum c / sum a with se sqrt(sum (c_b - R a_b)^2 / (B (B - 1))) / mean(a) says
-"better" 7.4 / 4.6 / 1.9 % of the time at one-sided 2.5 / 1.25 / 0.42 % with 4 blocks (its spread
-shrinks as R falls below 1); the plain difference c_b - a_b keeps the level (2.0 / 1.0 / 0.3 %)
-but loses a 10x gain concentrated in a few blocks (found 12 % at 0.42 % with 4 blocks, the log
-ratio 84-91 %). The log form: 2.5-3.3 / 1.4-1.7 / 0.4-0.6 % with 4 blocks (two runs of 3000), 4.2 /
-2.3 / 0.8 % with 24 without the r_1 term, 2.7 / 1.2 / 0.5 % with it (50 blocks: 2.7 / 1.4 / 0.4 %).
+    se(R) = sqrt( sum_b (d_b - mean(d))^2 / (B (B - 1)) ) / mean_b(a_b),
 
-A candidate is
+so the one-sided p-values are those of the paired t-test on the block differences. Not the
+delta-method ratio form sqrt(sum (c_b - R a_b)^2 / (B (B - 1))) / mean(a): its spread shrinks as R
+falls below 1 (c - R a subtracts less of a), so it calls "better" too often. Measured on AR(1) nulls
+(correlation time 20 rows, blocks of 60, ``tests/test_decisions.py``): at one-sided 2.5 / 1.25 /
+0.42 % the ratio form says "better" 8.1 / 5.7 / 2.7 % of the time with 4 blocks, 6.9 / 4.6 / 2.3 %
+with 24; the difference form 2.1 / 0.8 / 0.3 % and 3.5 / 1.8 / 0.6 %.
+
+and the two-sided ``level`` interval of R is R +- t_{B-1, (1+level)/2} se(R), mapped to d by the
+square root (monotone). A candidate is
 
 * **worse** on joint j when the interval's lower end of d is above 0 (worse beyond its own spread),
 * **better** on joint j when the interval's upper end is below 0 (a significant gain),
@@ -144,23 +142,19 @@ def paired_test(e_ref: np.ndarray, e_new: np.ndarray, ids: np.ndarray, level: fl
     if B < MIN_BLOCKS or a.mean() <= 0:
         est = rms_new / rms_ref - 1.0 if B and rms_ref > 0 else float("nan")
         return PairedTest(est, -math.inf, math.inf, level, 1.0, 1.0, False, False, rms_ref, rms_new, B, block)
-    floor = 1e-12 * max(float(a.mean()), float(c.mean()))  # a block with no error at all
-    lr = np.log((c + floor) / (a + floor))
-    m = float(lr.mean())
-    x = lr - m
-    r1 = float(np.sum(x[1:] * x[:-1]) / np.sum(x * x)) if B > 2 and np.any(x) else 0.0
-    se = float(lr.std(ddof=1)) / math.sqrt(B) * math.sqrt(1.0 + 2.0 * max(r1, 0.0))  # neighbours' correlation
+    R = c.sum() / a.sum()
+    diff = c - a
+    se = math.sqrt(float(np.sum((diff - diff.mean()) ** 2)) / (B * (B - 1))) / float(a.mean())
     dof = B - 1
-    R = math.exp(m)
     if se <= 0:
-        p_w = 0.0 if m > 0 else 1.0
-        p_b = 0.0 if m < 0 else 1.0
+        p_w = 0.0 if R > 1 else 1.0
+        p_b = 0.0 if R < 1 else 1.0
         lo = hi = R
     else:
         tq = float(stats.t.ppf(0.5 + level / 2.0, dof))
-        lo, hi = math.exp(m - tq * se), math.exp(m + tq * se)
-        p_w = float(stats.t.sf(m / se, dof))
-        p_b = float(stats.t.cdf(m / se, dof))
+        lo, hi = R - tq * se, R + tq * se
+        p_w = float(stats.t.sf((R - 1.0) / se, dof))
+        p_b = float(stats.t.cdf((R - 1.0) / se, dof))
     d = lambda x: math.sqrt(max(x, 0.0)) - 1.0  # noqa: E731
     alpha = (1.0 - level) / 2.0
     return PairedTest(d(R), d(lo), d(hi), level, p_w, p_b, p_w < alpha, p_b < alpha, rms_ref, rms_new, B, block)
