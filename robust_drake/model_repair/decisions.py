@@ -37,7 +37,10 @@ Measured and not adopted: a t-test on the block differences c_b - a_b holds the 
 one on block log ratios holds it too (2.5-3.3 / 1.4-1.7 / 0.4-0.6 %) and cut no-effect UR5 500 Hz
 acceptances 7 -> 1 of 30, but measures the typical block, not the RMS: DFKI C.1's presliding
 effect (-3.4 % [-5.3, -1.4]) became -2.0 % [-5.0, +1.0], the UR5 10x cogging p 0.013 at 0.0125.
-Four blocks are too few for a test of the right size to have the power the battery needs.
+Four blocks are too few for a test of the right size to have the power the battery needs, and
+shorter blocks do not give more: on the UR5 battery 3 t_r alone exceeds rows / 4 of the 2 s
+confirmation block (the cap binds), so the difference test with the lag-1 inflation and no
+settling term still gave the 10x cogging p = 0.033. More confirmation data is the remedy.
 
 The reference side of every comparison is computed once by the caller and passed in; nothing here
 refits anything. Pure functions, numpy/scipy only.
