@@ -52,7 +52,6 @@ def n_effective(data: "IdentData") -> float:
     return float(data.N) * min(1.0, 2.0 * fc * data.dt)
 
 
-
 def _digest(path: str) -> str:
     h = hashlib.sha256()
     with open(path, "rb") as fh:
