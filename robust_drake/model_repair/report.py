@@ -109,6 +109,11 @@ def verdict(res: RepairResult) -> dict:
                f"than the baseline by more than {res.guard.tolerance:.0%} beyond its spread (paired block test, "
                f"{res.guard.level:.0%}, Holm over joints)"
                + (" and neither does the replay" if replayed else " (torque validation only: no replay ran)"))
+        up = [(j, t) for j, t in enumerate(res.final.validate_change) if t.low > 0]
+        if up:  # worse at the level on its own, inside the margin / after Holm: said, not hidden
+            why += "; but " + ", ".join(
+                f"{_joint(None, j, res.inputs.joint_names)} validates {100 * t.estimate:+.1f} % "
+                f"[{100 * t.low:+.1f}, {100 * t.high:+.1f}] worse" for j, t in up) + " (within that margin)"
     elif not tried and not res.guard.dropped:
         why = "nothing kept: no candidate passed the selection"
     else:
