@@ -198,6 +198,9 @@ class Effect:
     needs_qdd: ClassVar[bool] = False  # the columns use acceleration
     modifies_plant: ClassVar[bool] = False  # realised by apply_to_plant, block() is None
     shared: ClassVar[bool] = False  # joint=None -> one coefficient shared by all joints
+    #: the kind claims a shape of friction against velocity: kept only if it explains the rows
+    #: away from that joint's velocity reversals (model_repair.stages.reversal_guard)
+    velocity_shape: ClassVar[bool] = False
     default_shape: ClassVar[dict] = {}
     #: physically admissible range [lo, hi] of each named parameter (:meth:`parameters`), per
     #: joint; a user-defined kind declares its own (and may override :meth:`admissible`)

@@ -41,6 +41,9 @@ class SmoothCoulomb(Effect):
 
     kind = "smooth_coulomb"
     coef_names = ("coulomb",)
+    #: a gradual switch is told from sign(qd) only near zero speed, where short sticks and the
+    #: filter's spread of the Coulomb step look the same (stages.reversal_guard)
+    velocity_shape = True
     #: the gradually switching share of the Coulomb level is a friction level: >= 0
     bounds = {"coulomb": (0.0, math.inf)}
     default_shape = {"transition_velocity": 0.3, "form": "tanh"}

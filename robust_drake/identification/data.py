@@ -872,6 +872,54 @@ def filter_settling_s(dt: float, cutoff_hz: float | None, order: int = DEFAULT_F
     return float(max(half - big[0], big[-1] - half) * dt)
 
 
+def filter_main_lobe_s(dt: float, cutoff_hz: float | None, order: int = DEFAULT_FILTER_ORDER) -> float:
+    """Half-width [s] of the main lobe of the zero-phase low-pass's impulse response (its first
+    zero from the centre; 0 without a filter): how far one raw torque step is spread before the
+    response changes sign. Measured: 0.062 s at 8 Hz, order 4 (about 1 / (2 f_c)) at 500 Hz to
+    2500 Hz, 0.07 s at 100 Hz."""
+    if not cutoff_hz:
+        return 0.0
+    half = int(math.ceil(8.0 / (cutoff_hz * dt)))
+    x = np.zeros(2 * half + 1)
+    x[half] = 1.0
+    h = zero_phase_lowpass(x[:, None], dt, cutoff_hz, order)[half:, 0]
+    neg = np.nonzero(h <= 0.0)[0]
+    return float((neg[0] if neg.size else half) * dt)
+
+
+def reversal_half_width_s(data: "IdentData", s=None) -> float:
+    """Half-width w [s] of the rows around a velocity reversal where the filtered velocity does
+    not resolve the friction state: a stick shorter than the stuck-row rule's
+    ``conditioning.STICK_MIN_S`` (so not marked stuck) centred on the zero crossing, spread by
+    the filter's main lobe (:func:`filter_main_lobe_s`): w = STICK_MIN_S / 2 + lobe (0.112 s at
+    8 Hz)."""
+    from robust_drake.identification import conditioning as C
+
+    dt = data.segment_period(s) if s is not None else float(data.dt)
+    cutoff = data.filter.cutoff_hz if data.filter.derivatives != "given" else None
+    return 0.5 * C.STICK_MIN_S + filter_main_lobe_s(dt, cutoff, data.filter.order or 1)
+
+
+def reversal_rows(data: "IdentData", joint: int) -> np.ndarray:
+    """(N,) bool: rows of ``joint`` within :func:`reversal_half_width_s` of a sign change of its
+    filtered velocity (same segment), or stuck (``IdentData.stuck``). There a sign(qd) column and
+    any smooth friction shape are told apart only by how the joint passes through zero speed
+    (short sticks, the filter's spread of the friction step), not by friction vs velocity."""
+    out = np.zeros(data.N, bool) if data.stuck is None else np.array(data.stuck[:, joint], bool)
+    for s in np.unique(data.segment):
+        idx = np.nonzero(data.segment == s)[0]
+        v = data.qd[idx, joint]
+        flips = np.nonzero(np.sign(v[1:]) != np.sign(v[:-1]))[0]
+        if flips.size == 0:
+            continue
+        w = int(round(reversal_half_width_s(data, s) / data.segment_period(s)))
+        cover = np.zeros(len(idx) + 1, int)
+        np.add.at(cover, np.maximum(flips - w + 1, 0), 1)
+        np.add.at(cover, np.minimum(flips + w + 1, len(idx)), -1)
+        out[idx] |= np.cumsum(cover)[:-1] > 0
+    return out
+
+
 def friction_exclusion(data: "IdentData") -> np.ndarray | None:
     """(N, n) bool: the rows of joint j's equation that a velocity-friction fit must leave out.
 

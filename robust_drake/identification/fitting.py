@@ -173,6 +173,22 @@ class ColumnCache:
         self._joints = {k: v for k, v in getattr(self, "_joints", {}).items() if k == "base" or k in kept}
         self._last_prediction = (None, None)
 
+    def excluding(self, extra: np.ndarray) -> "ColumnCache":
+        """A cache of the same columns that also leaves out the rows ``extra`` (N, n) bool of each
+        joint's equation (a copy of the baseline block, masked; effect columns and Gram products
+        are rebuilt on demand, never shared with this cache)."""
+        new = object.__new__(ColumnCache)
+        new.__dict__.update(self.__dict__)
+        exclude = np.asarray(extra, bool) if self.exclude is None else (self.exclude | np.asarray(extra, bool))
+        new.exclude = exclude if exclude.any() else None
+        new.keep = None if new.exclude is None else (~new.exclude).astype(float)
+        new.data = self.source if new.keep is None else self.source.with_tau(self.source.tau * new.keep)
+        new.base = self.base.copy() if new.keep is None else self.base * new.keep[:, :, None]
+        new._effects, new._held, new._effect_bytes = OrderedDict(), {}, 0
+        new._grams, new._lefts, new._joints = {}, {}, {"base": None}
+        new._last_prediction = (None, None)
+        return new
+
     def names(self, effects) -> list[str]:
         names = list(self.base_names)
         for e in effects:

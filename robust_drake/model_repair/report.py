@@ -116,6 +116,10 @@ def verdict(res: RepairResult) -> dict:
                 f"[{100 * t.low:+.1f}, {100 * t.high:+.1f}] worse" for j, t in up) + " (within that margin)"
     elif not tried and not res.guard.dropped:
         why = "nothing kept: no candidate passed the selection"
+    elif res.guard.dropped and all(d.get("rule") == "velocity_shape" for d in res.guard.dropped):
+        why = ("nothing kept: what the selection found (" + ", ".join(d["label"] for d in res.guard.dropped)
+               + ") is a friction shape whose gain sits at velocity reversals, not a significant gain away from "
+               "them (see rejected_effects)")
     else:
         what = " and ".join(w for w, k in (("every effect tried", tried),
                                           ("the switch to instrumental variables",
@@ -496,8 +500,9 @@ def _md_effects(rep: dict) -> list[str]:
                     "fit run's setup."))
     nw = rep.get("never_worse") or {}
     if rep.get("rejected_effects"):
-        L += ["", f"Tried and dropped by the never-worse rule (margin {_num(nw.get('tolerance'), '.0%')}, level "
-              f"{_num(nw.get('level'), '.0%')}; {nw.get('rule', '')}):", ""]
+        L += ["", f"Tried and dropped (never-worse rule: margin {_num(nw.get('tolerance'), '.0%')}, level "
+              f"{_num(nw.get('level'), '.0%')}; {nw.get('rule', '')}; a friction shape also by where its gain "
+              "lies, see each reason):", ""]
         L += [f"- {d['label']} ({_joint(rep, d['joint'])}): {d['reason']}" for d in rep["rejected_effects"]]
     return L
 
