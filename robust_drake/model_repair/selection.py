@@ -49,11 +49,9 @@ ranked by its CV gain on that error; then, from the top of the ranking:
        significantly worse than the candidate (paired block tests of the CV errors on the search
        rows) -- "degenerate: the data cannot rank these", none of them is accepted (they leave
        the pool);
-    3. noise floor: the effect's explained RMS (the change of the fitted prediction it brings, on
-       its joint, of filtered columns; pooled: the RMS over joints of the ratios) must reach the
-       residual's white-noise level (:func:`white_noise_level`, reported per joint in ``rows``).
-       The change, not the effect's own term: a column that largely repeats the model's (a smooth
-       Coulomb next to sign(qd)) has a large term that the other coefficients take back;
+    3. noise floor: the effect's explained RMS (its filtered columns x coefficients, on its joint;
+       pooled: the RMS over joints of the ratios) must reach the residual's white-noise level
+       (:func:`white_noise_level`, reported per joint in ``rows``);
     4. confirmation: a paired block test (``decisions.paired_test``) of the candidate vs the
        current model's squared errors on the confirmation rows (both fitted on the search rows;
        the current model's errors computed once per step), blocks of ``decisions.block_length``
@@ -483,15 +481,8 @@ class _Search:
         b = bic(float(np.sum(r**2)), self.rows, fit.rank, self.n_eff_rows)
         return float(np.mean(per)), per, b, fit, names, slices, ""
 
-    def explained(self, effects, fit, before=None, fit_before=None) -> np.ndarray:
-        """RMS per joint [N m] (rows in use) of what the last effect explains: with the model
-        before it (``before`` effects, fitted ``fit_before``), the change of the fitted prediction
-        -- what a column shares with the model's other columns is refitted, not explained (a smooth
-        Coulomb column next to sign(qd) moves the prediction far less than its own term); without
-        it, the last effect's columns x its coefficients."""
-        if fit_before is not None:
-            change = predict_tau(self.cache, effects, fit.theta) - predict_tau(self.cache, list(before), fit_before.theta)
-            return np.asarray(self.cache.rms(change), float)
+    def explained(self, effects, fit) -> np.ndarray:
+        """RMS per joint [N m] of the last effect's columns x its coefficients (rows in use)."""
         slices = self.cache.blocks(effects)[2]
         mask = np.zeros(slices[-1].stop, bool)
         mask[slices[-1]] = True
@@ -527,9 +518,9 @@ def forward_select(cache: ColumnCache, candidates: list, min_gain: float = MIN_G
     the up to 1 + ``next_tries`` candidates tested on the confirmation block in it)."""
     search, rows_info = _setup(cache, min_gain, folds, weights, icache, confirm_fraction, confirm_gain, gap,
                                context, level, next_tries)
-    sc0, per0, b0, fit0, _, _, _ = search.evaluate([])
+    sc0, per0, b0, _, _, _, _ = search.evaluate([])
     baseline_score = sc0
-    cur = {"effects": [], "score": sc0, "per": per0, "bic": b0, "fit": _without_residual(fit0),
+    cur = {"effects": [], "score": sc0, "per": per0, "bic": b0,
            "confirm": search.confirm([]) if search.has_confirm else None}
     base_confirm = cur["confirm"]
     c_base = float(np.sum(base_confirm[search.split.confirm] ** 2)) if search.has_confirm else float("nan")
@@ -550,7 +541,7 @@ def forward_select(cache: ColumnCache, candidates: list, min_gain: float = MIN_G
         pool = [e for e in pool if effect_label(e) not in drop]
         e_best = winner["effect"]
         cur = {"effects": cur["effects"] + [e_best], "score": winner["score"], "per": winner["per"],
-               "bic": winner["bic"], "fit": winner["fit"], "confirm": winner.get("confirm")}
+               "bic": winner["bic"], "confirm": winner.get("confirm")}
         pool = [e for e in pool if not (e.kind == e_best.kind and e.joint == e_best.joint)]
     chosen, removed = _recheck(search, cur["effects"], base_confirm)
     for label, why in removed:
@@ -709,7 +700,7 @@ def _below_floor(search: _Search, cur: dict, t: dict, st: Step) -> bool:
     does not count among the step's ``search.tries`` tests."""
     e, effects = t["effect"], cur["effects"] + [t["effect"]]
     j = _target(e)
-    expl = search.explained(effects, t["fit"], cur["effects"], cur.get("fit"))
+    expl = search.explained(effects, t["fit"])
     st.explained_rms, st.noise_floor = [float(x) for x in expl], [float(x) for x in search.noise]
     ratio = expl[j] / search.noise[j] if j is not None else float(np.sqrt(np.mean((expl / search.noise) ** 2)))
     if ratio >= 1.0:
