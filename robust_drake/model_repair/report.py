@@ -127,6 +127,10 @@ def verdict(res: RepairResult) -> dict:
         why = (f"nothing kept: {what or 'everything tried'} made a joint's validation"
                + (" or the replay" if replayed else "") + " worse than the least-squares baseline (see rejected_effects)"
                + ("" if replayed else "; no replay ran"))
+    shapes = [d["label"] for d in res.guard.dropped if d.get("rule") == "velocity_shape"]
+    if shapes and "at velocity reversals" not in why:
+        why += (f"; not kept: {', '.join(shapes)} (a friction shape whose gain sits at velocity reversals, "
+                "see rejected_effects)")
     if named:
         why += f"; named from the URDF comparison (not part of the fitted model): {', '.join(named)}"
     return {"verdict": "repaired" if kept else "no_improvement", "verdict_reason": why}
