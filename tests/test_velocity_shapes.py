@@ -103,3 +103,37 @@ def test_sticking_at_reversals_is_not_claimed_as_a_smooth_coulomb(clean_no_effec
         t = d["tests"][0]
         assert not t["better"] and t["blocks"] >= 4 and math.isfinite(t["low"])
     assert "friction shape whose gain sits at velocity reversals" in rep["verdict_reason"]
+
+
+def test_a_cache_excluding_more_rows_equals_one_built_with_them(tmp_path):
+    """``ColumnCache.excluding`` (a masked copy) against a cache built from scratch with the
+    union of the exclusions: the same columns, torques and fitted parameters."""
+    import pandas as pd
+    from fourier_motion import fourier_motion
+
+    from robust_drake.effects import SmoothCoulomb
+    from robust_drake.identification.data import load
+    from robust_drake.identification.fitting import ColumnCache, fit_model
+    from robust_drake.identification.least_squares import load_regressor
+
+    robot = "dfki_double_pendulum_c1"
+    reg = load_regressor(robot)
+    t = np.arange(0.0, 6.0, 0.005)
+    q, qd, qdd = fourier_motion(t, np.random.default_rng(3), 0.25)
+    tau = reg.evaluate(q, qd, qdd) @ reg.base_parameters() + 0.08 * np.sign(qd) + 0.004 * qd
+    tau += 0.005 * np.random.default_rng(4).standard_normal(tau.shape)
+    path = tmp_path / "log.csv"
+    pd.DataFrame({"t": t, "q1": q[:, 0], "q2": q[:, 1], "tau1": tau[:, 0], "tau2": tau[:, 1]}).to_csv(path, index=False)
+    data = load([str(path)], robot=robot, n_joints=2)
+    first = np.zeros((data.N, 2), bool)
+    first[:100, 0] = True
+    extra = np.zeros((data.N, 2), bool)
+    extra[:, 1] = reversal_rows(data, 1)
+    assert extra[:, 1].any()
+    copy = ColumnCache(data, reg, exclude=first).excluding(extra)
+    fresh = ColumnCache(data, reg, exclude=first | extra)
+    effects = [SmoothCoulomb(1, transition_velocity=0.1)]
+    assert np.array_equal(copy.model(effects)[0], fresh.model(effects)[0])
+    assert np.array_equal(copy.data.tau, fresh.data.tau) and np.array_equal(copy.rows, fresh.rows)
+    a, b = fit_model(copy, effects)[0], fit_model(fresh, effects)[0]
+    assert np.allclose(a.theta, b.theta, rtol=1e-10, atol=1e-12)
