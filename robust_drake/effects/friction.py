@@ -22,6 +22,9 @@ class Stribeck(Effect):
 
     kind = "stribeck"
     coef_names = ("stribeck_torque",)
+    #: a breakaway excess lives at low speed, mostly next to reversals, where a short stick and the
+    #: filter's spread of the Coulomb step can imitate it (stages.reversal_guard)
+    velocity_shape = True
     #: F_s >= F_c: the breakaway level is above the Coulomb level (a level *below* it at low
     #: speed is not Stribeck friction)
     bounds = {"stribeck_torque": (0.0, math.inf)}
