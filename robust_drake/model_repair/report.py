@@ -46,6 +46,10 @@ class RepairResult:
     setup_change: dict | None = None
 
 
+#: the rules of stages.reversal_guard (an effect that is not a significant gain on its joint)
+GAIN_RULES = ("velocity_shape", "validated_gain")
+
+
 def once(messages: list[str]) -> list[str]:
     """The warnings in order, each once; of the poor-excitation warnings (one per fit, each with its
     own condition number, ``least_squares.poor_excitation_text``) only the first, the baseline's."""
@@ -116,10 +120,10 @@ def verdict(res: RepairResult) -> dict:
                 f"[{100 * t.low:+.1f}, {100 * t.high:+.1f}] worse" for j, t in up) + " (within that margin)"
     elif not tried and not res.guard.dropped:
         why = "nothing kept: no candidate passed the selection"
-    elif res.guard.dropped and all(d.get("rule") == "velocity_shape" for d in res.guard.dropped):
+    elif res.guard.dropped and all(d.get("rule") in GAIN_RULES for d in res.guard.dropped):
         why = ("nothing kept: what the selection found (" + ", ".join(d["label"] for d in res.guard.dropped)
-               + ") is a friction shape whose gain sits at velocity reversals, not a significant gain away from "
-               "them (see rejected_effects)")
+               + ") is not a significant gain on its joint's validation rows (a friction shape: away from its "
+               "velocity reversals; see rejected_effects)")
     else:
         what = " and ".join(w for w, k in (("every effect tried", tried),
                                           ("the switch to instrumental variables",
@@ -127,9 +131,9 @@ def verdict(res: RepairResult) -> dict:
         why = (f"nothing kept: {what or 'everything tried'} made a joint's validation"
                + (" or the replay" if replayed else "") + " worse than the least-squares baseline (see rejected_effects)"
                + ("" if replayed else "; no replay ran"))
-    shapes = [d["label"] for d in res.guard.dropped if d.get("rule") == "velocity_shape"]
-    if shapes and "at velocity reversals" not in why:
-        why += (f"; not kept: {', '.join(shapes)} (a friction shape whose gain sits at velocity reversals, "
+    shapes = [d["label"] for d in res.guard.dropped if d.get("rule") in GAIN_RULES]
+    if shapes and "not a significant gain on its joint" not in why:
+        why += (f"; not kept: {', '.join(shapes)} (not a significant gain on its joint's validation rows, "
                 "see rejected_effects)")
     if named:
         why += f"; named from the URDF comparison (not part of the fitted model): {', '.join(named)}"

@@ -705,28 +705,58 @@ def reversal_tests(inp: Inputs, base: Baseline, est: Estimator, effects, k: int,
     return D.paired_test(resid[0] ** 2, resid[1] ** 2, ids, float(getattr(opts, "level", D.LEVEL)))
 
 
+def gain_test(inp: Inputs, base: Baseline, est: Estimator, effects, k: int, opts) -> D.PairedTest:
+    """Paired block test, on effect ``k``'s joint's validation rows, of the model with ``effects``
+    against the same model without effect ``k`` (both fitted on the fit data; the reference side
+    fitted once per effect); a velocity shape on the rows away from reversals
+    (:func:`reversal_tests`)."""
+    e = effects[k]
+    if getattr(e, "velocity_shape", False):
+        return reversal_tests(inp, base, est, effects, k, opts)
+    j = e.joint
+    resid = []
+    for effs in (effects[:k] + effects[k + 1:], effects):
+        f, _ = est.fit(inp.cf, effs, refit_weights(inp, base, est, effs, opts))
+        resid.append(inp.val.tau[:, j] - predict_tau(inp.cv, effs, f.theta)[:, j])
+    ids = base.blocks.ids if base.blocks is not None else validation_blocks(inp.val, base.val_residual).ids
+    return D.paired_test(resid[0] ** 2, resid[1] ** 2, ids, float(getattr(opts, "level", D.LEVEL)))
+
+
 def reversal_guard(inp: Inputs, base: Baseline, est: Estimator, sel: Selection, opts, log) -> tuple[Selection, list]:
-    """Drop every velocity-shape effect (``Effect.velocity_shape``) that does not validate
-    significantly better, on its joint's rows away from velocity reversals, than the model without
-    it (:func:`reversal_tests`; module docstring). Returns the selection and the drops (rows of
-    ``Guard.dropped``)."""
+    """Keep a single-joint effect only if it validates significantly better on its joint than the
+    model without it (:func:`gain_test`; a velocity shape away from its joint's reversals, module
+    docstring), Holm over the effects tested at one-sided (1 - level) / 2. Effects without a joint
+    (a shared delay) are left to the never-worse rule. Returns the selection and the drops (rows
+    of ``Guard.dropped``)."""
     effects, dropped = list(sel.chosen), []
-    for e in [e for e in effects if getattr(e, "velocity_shape", False) and e.joint is not None]:
-        k = effects.index(e)
-        t = reversal_tests(inp, base, est, effects, k, opts)
-        if t.better:
-            continue
-        j, w = e.joint, reversal_half_width_s(inp.val)
-        why = (f"its gain sits within {w:.3g} s of joint {j + 1}'s velocity reversals, where a short stick and the "
-               f"filter's spread of the Coulomb step look like a gradual switch; fitted and validated away from them it "
-               f"changes that joint's validation error {t.text()} over {t.blocks} blocks: not a significant gain")
-        effects.remove(e)
+    single = [k for k, e in enumerate(effects) if e.joint is not None]
+    if not single:
+        return sel, dropped
+    tests = {k: gain_test(inp, base, est, effects, k, opts) for k in single}
+    level = float(getattr(opts, "level", D.LEVEL))
+    ok = dict(zip(single, D.holm([tests[k].p_better for k in single], (1.0 - level) / 2.0)))
+    gone = [k for k in single if not ok[k]]
+    w = reversal_half_width_s(inp.val)
+    for k in gone:
+        e, t = effects[k], tests[k]
+        j = e.joint
+        holm = f" (Holm over the {len(single)} effects)" if len(single) > 1 else ""
+        if getattr(e, "velocity_shape", False):
+            why = (f"its gain sits within {w:.3g} s of joint {j + 1}'s velocity reversals, where a short stick and "
+                   f"the filter's spread of the Coulomb step look like a friction shape; fitted and validated away from "
+                   f"them it changes that joint's validation error {t.text()} over {t.blocks} blocks: not a "
+                   f"significant gain{holm}")
+            rule = "velocity_shape"
+        else:
+            why = (f"on joint {j + 1}'s validation rows it changes the error {t.text()} over {t.blocks} blocks "
+                   f"against the model without it: not a significant gain{holm}")
+            rule = "validated_gain"
         dropped.append({"label": effect_label(e), "kind": e.kind, "joint": j, "reason": why,
-                        "tests": [t.as_dict()], "rule": "velocity_shape"})
-        log(f"velocity shape: dropped {effect_label(e)}: {why}")
-    if len(effects) != len(sel.chosen):
-        sel.chosen = effects
-        sel.weights = refit_weights(inp, base, est, effects, opts)
+                        "tests": [t.as_dict()], "rule": rule})
+        log(f"validated gain: dropped {effect_label(e)}: {why}")
+    if gone:
+        sel.chosen = [e for k, e in enumerate(effects) if k not in gone]
+        sel.weights = refit_weights(inp, base, est, sel.chosen, opts)
     return sel, dropped
 
 
