@@ -516,8 +516,9 @@ def run_repair(fit_paths, options: RepairOptions, validate_paths=None, out_dir=N
             inp.warnings += IC.transfer_check(inp.val.tau, inp.val.tau - base.val_residual, base.fit.rms)
         est = S.choose_estimator(inp, base, opts, log)
         sel = S.select_effects(inp, base, est, opts, log)
-        sel = S.resolve_torque_scale(inp, base, est, sel, opts, log)
+        # judged on the joint the selection measured the gain on (before torque_scale is moved)
         sel, shape_drops = S.reversal_guard(inp, base, est, sel, opts, log)
+        sel = S.resolve_torque_scale(inp, base, est, sel, opts, log)
         est, sel, guard = S.never_worse(inp, base, est, sel, opts, log, tol=opts.never_worse_tol)
         guard.dropped[:0] = shape_drops
         est, sel, fin, cons, replay_out = S.replay_guard(inp, base, est, sel, guard, opts, log)

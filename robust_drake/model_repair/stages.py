@@ -1,7 +1,7 @@
 """The repair pipeline as stages; ``pipeline.run_repair`` runs them in this order::
 
     load_inputs -> fit_baseline -> (setup change) -> choose_estimator -> select_effects
-      -> resolve_torque_scale -> reversal_guard -> never_worse -> replay_guard (final_model, consistent_fits,
+      -> reversal_guard -> resolve_torque_scale -> never_worse -> replay_guard (final_model, consistent_fits,
       replay_models per attempt) -> compare_nominal -> RepairResult (rendered by report.py)
 
 Each stage takes and returns small dataclasses. The estimator travels in one typed form,
@@ -44,7 +44,13 @@ are wrong (tests/test_hidden_effects.py's sensor-vibration arm: IV within 3 % of
 replay 4-14x better, the validation torque error +6.5 % on joint 1); the report then says that IV
 was tried and why it was dropped (``rejected_effects``, kind ``estimator``).
 
-Velocity shapes (:func:`reversal_guard`): a kind that claims a shape of friction against
+Validated gain (:func:`reversal_guard`, before the never-worse rule): every single-joint effect the
+selection accepted must validate significantly better on its joint than the model without it
+(paired block test on the validation rows, Holm over the effects): "better" is a significant gain
+on the validation run's 20-30 blocks, not only on the selection's 4-block confirmation block, where
+the paired test says "better" too often (``decisions.py``, "Known limit"). A no-effect serial7 log
+(100 Hz, seed 104) had position_dependent[4] accepted that way; now dropped. Velocity shapes: a kind
+that claims a shape of friction against
 velocity (``Effect.velocity_shape``: smooth Coulomb, Stribeck) is kept only if, on its joint, it validates
 significantly better than the model without it on the rows away from velocity reversals
 (``identification.data.reversal_rows``: within STICK_MIN_S / 2 + the filter's main lobe, 0.11 s
