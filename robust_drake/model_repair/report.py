@@ -509,8 +509,8 @@ def _md_effects(rep: dict) -> list[str]:
     nw = rep.get("never_worse") or {}
     if rep.get("rejected_effects"):
         L += ["", f"Tried and dropped (never-worse rule: margin {_num(nw.get('tolerance'), '.0%')}, level "
-              f"{_num(nw.get('level'), '.0%')}; {nw.get('rule', '')}; a friction shape also by where its gain "
-              "lies, see each reason):", ""]
+              f"{_num(nw.get('level'), '.0%')}; {nw.get('rule', '')}; and every single-joint effect that is not a "
+              "significant gain on its joint's validation rows, see each reason):", ""]
         L += [f"- {d['label']} ({_joint(rep, d['joint'])}): {d['reason']}" for d in rep["rejected_effects"]]
     return L
 
