@@ -199,7 +199,7 @@ class Effect:
     modifies_plant: ClassVar[bool] = False  # realised by apply_to_plant, block() is None
     shared: ClassVar[bool] = False  # joint=None -> one coefficient shared by all joints
     #: the kind claims a shape of friction against velocity: kept only if it explains the rows
-    #: away from that joint's velocity reversals (model_repair.stages.reversal_guard)
+    #: away from that joint's velocity reversals (model_repair.stages.validated_gain_guard)
     velocity_shape: ClassVar[bool] = False
     default_shape: ClassVar[dict] = {}
     #: physically admissible range [lo, hi] of each named parameter (:meth:`parameters`), per

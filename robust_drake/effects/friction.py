@@ -23,7 +23,7 @@ class Stribeck(Effect):
     kind = "stribeck"
     coef_names = ("stribeck_torque",)
     #: a breakaway excess lives at low speed, mostly next to reversals, where a short stick and the
-    #: filter's spread of the Coulomb step can imitate it (stages.reversal_guard)
+    #: filter's spread of the Coulomb step can imitate it (stages.validated_gain_guard)
     velocity_shape = True
     #: F_s >= F_c: the breakaway level is above the Coulomb level (a level *below* it at low
     #: speed is not Stribeck friction)
@@ -45,7 +45,7 @@ class SmoothCoulomb(Effect):
     kind = "smooth_coulomb"
     coef_names = ("coulomb",)
     #: a gradual switch is told from sign(qd) only near zero speed, where short sticks and the
-    #: filter's spread of the Coulomb step look the same (stages.reversal_guard)
+    #: filter's spread of the Coulomb step look the same (stages.validated_gain_guard)
     velocity_shape = True
     #: the gradually switching share of the Coulomb level is a friction level: >= 0
     bounds = {"coulomb": (0.0, math.inf)}

@@ -46,7 +46,7 @@ class RepairResult:
     setup_change: dict | None = None
 
 
-#: the rules of stages.reversal_guard (an effect that is not a significant gain on its joint)
+#: the rules of stages.validated_gain_guard (an effect that is not a significant gain on its joint)
 GAIN_RULES = ("velocity_shape", "validated_gain")
 
 

@@ -1,7 +1,7 @@
 """The repair pipeline as stages; ``pipeline.run_repair`` runs them in this order::
 
     load_inputs -> fit_baseline -> (setup change) -> choose_estimator -> select_effects
-      -> reversal_guard -> resolve_torque_scale -> never_worse -> replay_guard (final_model, consistent_fits,
+      -> validated_gain_guard -> resolve_torque_scale -> never_worse -> replay_guard (final_model, consistent_fits,
       replay_models per attempt) -> compare_nominal -> RepairResult (rendered by report.py)
 
 Each stage takes and returns small dataclasses. The estimator travels in one typed form,
@@ -44,7 +44,7 @@ are wrong (tests/test_hidden_effects.py's sensor-vibration arm: IV within 3 % of
 replay 4-14x better, the validation torque error +6.5 % on joint 1); the report then says that IV
 was tried and why it was dropped (``rejected_effects``, kind ``estimator``).
 
-Validated gain (:func:`reversal_guard`, before the never-worse rule): every single-joint effect the
+Validated gain (:func:`validated_gain_guard`, before the never-worse rule): every single-joint effect the
 selection accepted must validate significantly better on its joint than the model without it
 (paired block test on the validation rows, Holm over the effects): "better" is a significant gain
 on the validation run's 20-30 blocks, not only on the selection's 4-block confirmation block, where
@@ -686,49 +686,36 @@ def never_worse(inp: Inputs, base: Baseline, est: Estimator, sel: Selection, opt
     return est, sel, guard
 
 
-# ------------------------------------------------------------------------------------ velocity shapes
-def reversal_tests(inp: Inputs, base: Baseline, est: Estimator, effects, k: int, opts) -> D.PairedTest:
-    """Paired block test of effect ``k``'s gain where sign(qd) and a friction shape can be told
-    apart: both the model with ``effects`` and its reference without effect ``k`` are fitted with
-    the rows near effect ``k``'s joint's velocity reversals left out of that joint's equation
-    (:func:`reversal_rows` of the fit data: there both would fit the sticking, which biases the
-    Coulomb level elsewhere) and compared on that joint's validation rows away from its reversals,
-    on the baseline's block length."""
+# ------------------------------------------------------------------------------------ validated gain
+def gain_test(inp: Inputs, base: Baseline, est: Estimator, effects, k: int, opts) -> D.PairedTest:
+    """Paired block test, on effect ``k``'s joint's validation rows, of the model with ``effects``
+    against its reference, the same model without effect ``k`` (fitted once per effect), on the
+    baseline's blocks. A velocity shape (``Effect.velocity_shape``) is judged where sign(qd) and a
+    friction shape can be told apart: both models are fitted with the rows near that joint's
+    velocity reversals left out of its equation (:func:`reversal_rows` of the fit data: there both
+    would fit the sticking, which biases the Coulomb level elsewhere) and compared on its
+    validation rows away from its reversals, in blocks of the baseline's length."""
     import dataclasses
 
-    j = effects[k].joint
-    near = np.zeros((inp.fit.N, inp.fit.n), bool)
-    near[:, j] = reversal_rows(inp.fit, j)
-    cf = inp.cf.excluding(near)
-    est_k = dataclasses.replace(est, icache=None if est.icache is None else est.icache.excluding(near))
+    e = effects[k]
+    j = e.joint
+    cf, est_k, ids = inp.cf, est, base.blocks.ids if base.blocks is not None else \
+        validation_blocks(inp.val, base.val_residual).ids
+    if getattr(e, "velocity_shape", False):
+        near = np.zeros((inp.fit.N, inp.fit.n), bool)
+        near[:, j] = reversal_rows(inp.fit, j)
+        cf = inp.cf.excluding(near)
+        est_k = dataclasses.replace(est, icache=None if est.icache is None else est.icache.excluding(near))
+        block = base.blocks.block if base.blocks is not None else 1
+        ids = D.block_ids(inp.val.segment, inp.val.N, block, mask=~reversal_rows(inp.val, j))
     resid = []
     for effs in (effects[:k] + effects[k + 1:], effects):
         f, _ = est_k.fit(cf, effs, refit_weights(inp, base, est, effs, opts))
         resid.append(inp.val.tau[:, j] - predict_tau(inp.cv, effs, f.theta)[:, j])
-    away = ~reversal_rows(inp.val, j)
-    block = base.blocks.block if base.blocks is not None else 1
-    ids = D.block_ids(inp.val.segment, inp.val.N, block, mask=away)
     return D.paired_test(resid[0] ** 2, resid[1] ** 2, ids, float(getattr(opts, "level", D.LEVEL)))
 
 
-def gain_test(inp: Inputs, base: Baseline, est: Estimator, effects, k: int, opts) -> D.PairedTest:
-    """Paired block test, on effect ``k``'s joint's validation rows, of the model with ``effects``
-    against the same model without effect ``k`` (both fitted on the fit data; the reference side
-    fitted once per effect); a velocity shape on the rows away from reversals
-    (:func:`reversal_tests`)."""
-    e = effects[k]
-    if getattr(e, "velocity_shape", False):
-        return reversal_tests(inp, base, est, effects, k, opts)
-    j = e.joint
-    resid = []
-    for effs in (effects[:k] + effects[k + 1:], effects):
-        f, _ = est.fit(inp.cf, effs, refit_weights(inp, base, est, effs, opts))
-        resid.append(inp.val.tau[:, j] - predict_tau(inp.cv, effs, f.theta)[:, j])
-    ids = base.blocks.ids if base.blocks is not None else validation_blocks(inp.val, base.val_residual).ids
-    return D.paired_test(resid[0] ** 2, resid[1] ** 2, ids, float(getattr(opts, "level", D.LEVEL)))
-
-
-def reversal_guard(inp: Inputs, base: Baseline, est: Estimator, sel: Selection, opts, log) -> tuple[Selection, list]:
+def validated_gain_guard(inp: Inputs, base: Baseline, est: Estimator, sel: Selection, opts, log) -> tuple[Selection, list]:
     """Keep a single-joint effect only if it validates significantly better on its joint than the
     model without it (:func:`gain_test`; a velocity shape away from its joint's reversals, module
     docstring), Holm over the effects tested at one-sided (1 - level) / 2. Effects without a joint
