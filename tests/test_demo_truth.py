@@ -41,14 +41,11 @@ def test_report_md_shows_truth_beside_found(demo):
     assert "| 0.6 |" in row and "not found" not in row
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "issue 21's per-joint selection also keeps smooth_coulomb[1] (transition 0.1 rad/s, the grid's "
-    "smallest): confirmation block -17.2 % [-30.0, -6.1] (p = 0.0072 < 0.0125), elbow validation "
-    "0.0098 -> 0.0077 N m, Coulomb level 0.2 -> 0.153. The simulator's Coulomb is tanh(qd / 0.01) of "
-    "the true velocity, the model's sgn of the 8 Hz-filtered one; the filtered velocity's smear at the "
-    "elbow's reversals (median |qdd| / (4 f_c) = 0.023 rad/s) is below the 0.1 chosen, so the gain is "
-    "not that smear alone: not yet explained (issue 21 item 4), and no admissibility rule refuses it"))
 def test_repair_claims_nothing_but_the_cogging(demo):
+    """Before stages.validated_gain_guard the selection also kept smooth_coulomb[2] (0.1 rad/s, the
+    grid's smallest; confirmation block -17.2 % [-30.0, -6.1]) for the sticking at the elbow's
+    reversals (the simulator's Coulomb is tanh(qd / 0.01)); fitted and validated away from the
+    reversals it is no gain, so it is dropped and named in rejected_effects."""
     rep, folder = demo
     truth = RC.truth()
     assert [(e["kind"], e["joint"]) for e in rep["effects"]] == [(truth["kind"], truth["joint"])]

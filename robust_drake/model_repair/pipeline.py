@@ -487,7 +487,7 @@ def run_repair(fit_paths, options: RepairOptions, validate_paths=None, out_dir=N
 
     from robust_drake.log import StageTimer, progress_callback
 
-    S = StageTimer(S, total=8, desc="repair", enabled=progress is None)  # a bar (terminal, notebook) or a line per stage; -v: timings
+    S = StageTimer(S, total=9, desc="repair", enabled=progress is None)  # a bar (terminal, notebook) or a line per stage; -v: timings
 
     from robust_drake.errors import OptionError
 
