@@ -864,12 +864,19 @@ def filter_settling_s(dt: float, cutoff_hz: float | None, order: int = DEFAULT_F
     8 Hz, order 4, 250 Hz."""
     if not cutoff_hz:
         return 0.0
+    h, half = _impulse_response(dt, cutoff_hz, order)
+    h = np.abs(h)
+    big = np.nonzero(h >= level * h.max())[0]
+    return float(max(half - big[0], big[-1] - half) * dt)
+
+
+def _impulse_response(dt: float, cutoff_hz: float, order: int) -> tuple[np.ndarray, int]:
+    """The zero-phase low-pass's response to a unit impulse at the centre of 2 half + 1 samples
+    (half = 8 / (f_c dt): long past its settling), and that centre index."""
     half = int(math.ceil(8.0 / (cutoff_hz * dt)))
     x = np.zeros(2 * half + 1)
     x[half] = 1.0
-    h = np.abs(zero_phase_lowpass(x[:, None], dt, cutoff_hz, order)[:, 0])
-    big = np.nonzero(h >= level * h.max())[0]
-    return float(max(half - big[0], big[-1] - half) * dt)
+    return zero_phase_lowpass(x[:, None], dt, cutoff_hz, order)[:, 0], half
 
 
 def filter_main_lobe_s(dt: float, cutoff_hz: float | None, order: int = DEFAULT_FILTER_ORDER) -> float:
@@ -879,11 +886,8 @@ def filter_main_lobe_s(dt: float, cutoff_hz: float | None, order: int = DEFAULT_
     2500 Hz, 0.07 s at 100 Hz."""
     if not cutoff_hz:
         return 0.0
-    half = int(math.ceil(8.0 / (cutoff_hz * dt)))
-    x = np.zeros(2 * half + 1)
-    x[half] = 1.0
-    h = zero_phase_lowpass(x[:, None], dt, cutoff_hz, order)[half:, 0]
-    neg = np.nonzero(h <= 0.0)[0]
+    h, half = _impulse_response(dt, cutoff_hz, order)
+    neg = np.nonzero(h[half:] <= 0.0)[0]
     return float((neg[0] if neg.size else half) * dt)
 
 

@@ -517,10 +517,10 @@ def run_repair(fit_paths, options: RepairOptions, validate_paths=None, out_dir=N
         est = S.choose_estimator(inp, base, opts, log)
         sel = S.select_effects(inp, base, est, opts, log)
         # judged on the joint the selection measured the gain on (before torque_scale is moved)
-        sel, shape_drops = S.validated_gain_guard(inp, base, est, sel, opts, log)
+        sel, gain_drops = S.validated_gain_guard(inp, base, est, sel, opts, log)
         sel = S.resolve_torque_scale(inp, base, est, sel, opts, log)
         est, sel, guard = S.never_worse(inp, base, est, sel, opts, log, tol=opts.never_worse_tol)
-        guard.dropped[:0] = shape_drops
+        guard.dropped[:0] = gain_drops
         est, sel, fin, cons, replay_out = S.replay_guard(inp, base, est, sel, guard, opts, log)
         nominal = S.compare_nominal(inp, sel, fin, guard, opts, log, base)
     _rate_plausibility(fin.effects_out, opts.robot)

@@ -99,6 +99,7 @@ def verdict(res: RepairResult) -> dict:
     kept = bool(res.selection.chosen) or res.estimator.iv
     named = [e["label"] for e in res.final.effects_out if e.get("source") == "parameter_shift"]
     tried = [s for s in res.selection.steps if s.accepted]
+    only_gain = bool(res.guard.dropped) and all(d.get("rule") in GAIN_RULES for d in res.guard.dropped)
     sc = res.setup_change or {}
     replayed = bool((res.replay or {}).get("before") and (res.replay or {}).get("after"))
     if sc.get("flagged"):
@@ -120,7 +121,7 @@ def verdict(res: RepairResult) -> dict:
                 f"[{100 * t.low:+.1f}, {100 * t.high:+.1f}] worse" for j, t in up) + " (within that margin)"
     elif not tried and not res.guard.dropped:
         why = "nothing kept: no candidate passed the selection"
-    elif res.guard.dropped and all(d.get("rule") in GAIN_RULES for d in res.guard.dropped):
+    elif only_gain:
         why = ("nothing kept: what the selection found (" + ", ".join(d["label"] for d in res.guard.dropped)
                + ") is not a significant gain on its joint's validation rows (a friction shape: away from its "
                "velocity reversals; see rejected_effects)")
@@ -132,7 +133,7 @@ def verdict(res: RepairResult) -> dict:
                + (" or the replay" if replayed else "") + " worse than the least-squares baseline (see rejected_effects)"
                + ("" if replayed else "; no replay ran"))
     shapes = [d["label"] for d in res.guard.dropped if d.get("rule") in GAIN_RULES]
-    if shapes and "not a significant gain on its joint" not in why:
+    if shapes and not (only_gain and not kept):
         why += (f"; not kept: {', '.join(shapes)} (not a significant gain on its joint's validation rows, "
                 "see rejected_effects)")
     if named:
