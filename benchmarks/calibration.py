@@ -14,7 +14,7 @@ issue-13 battery.  Each repair is timed; the largest 6-axis case's time is print
 
 Usage (from the repository root):
     OPENBLAS_NUM_THREADS=1 PYTHONPATH=. python benchmarks/calibration.py [--arms ur5,serial7]
-        [--seeds 30] [--detect-seeds 3] [--jobs 1] [--quick] [--rate 500] [--duration 10]
+        [--seeds 30] [--first-seed 0] [--detect-seeds 3] [--jobs 1] [--quick] [--rate 500] [--duration 10]
         [--part all|fa|detect] [--detect-arms ur5] [--out benchmarks/calibration_table.md]
         [--jsonl rows.jsonl] [--tables-from a.jsonl,b.jsonl]
 ``--quick``: 3 seeds and 1 detection seed (a smoke test).  The table is written as markdown to
@@ -170,6 +170,8 @@ def main(argv=None):
     ap.add_argument("--arms", default="ur5,serial7")
     ap.add_argument("--seeds", type=int, default=30)
     ap.add_argument("--detect-seeds", type=int, default=3)
+    ap.add_argument("--first-seed", type=int, default=0,
+                    help="start of the seed range (no-effect seeds are 100 + first + s, detection 200 + first + s)")
     ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--rate", type=float, default=500.0)
@@ -187,9 +189,9 @@ def main(argv=None):
     base = dict(rate=a.rate, duration=a.duration)
     items = []
     if a.part in ("all", "fa"):
-        items += [dict(arm=arm, kind=None, level=None, seed=100 + s, **base) for arm in arms for s in range(seeds)]
+        items += [dict(arm=arm, kind=None, level=None, seed=100 + a.first_seed + s, **base) for arm in arms for s in range(seeds)]
     if a.part in ("all", "detect"):
-        items += [dict(arm=arm, kind=k, level=lev, seed=200 + s, **base) for arm in (a.detect_arms or a.arms).split(",")
+        items += [dict(arm=arm, kind=k, level=lev, seed=200 + a.first_seed + s, **base) for arm in (a.detect_arms or a.arms).split(",")
                   for k in a.kinds.split(",") for lev in (3.0, 10.0) for s in range(dseeds)]
     if a.part == "battery":
         items += [dict(arm=arm, kind=None, level=None, case=c, seed=0, rate=float(rt), duration=a.duration)
