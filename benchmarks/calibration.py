@@ -66,8 +66,13 @@ def run_one(item: dict) -> dict:
                      validate_paths=vals)
     row = {**item, "t_repair": time.perf_counter() - t0, "claimed": AB.claimed(rep), "verdict": rep["verdict"]}
     if item["kind"] is not None:
-        m = AB.matches(rep, truth)["effects"][0]
-        row.update(joint=truth["joint"], found=m["found"], rel_error=m["rel_error"], true=m["true"], estimate=m["estimate"])
+        mt = AB.matches(rep, truth)
+        m = mt["effects"][0]
+        # named = kept AND claimed (an effect kept under a flagged setup change is not claimed)
+        named = m["found"] and any(c[0] == truth["kind"] and (truth["joint"] is None or c[1] == truth["joint"])
+                                   for c in row["claimed"])
+        row.update(joint=truth["joint"], found=named, rel_error=m["rel_error"] if named else None, true=m["true"],
+                   estimate=m["estimate"], others=len(mt["others"]))
     return row
 
 
@@ -156,7 +161,7 @@ def detect_table(rows, arms) -> list[str]:
             found = sum(r["found"] for r in rs)
             good = sum(bool(r["found"] and r["rel_error"] is not None and r["rel_error"] <= 0.10) for r in rs)
             errs = [r["rel_error"] for r in rs if r["rel_error"] is not None]
-            others = sum(len(r["claimed"]) - int(r["found"]) for r in rs)
+            others = sum(r.get("others", len(r["claimed"]) - int(r["found"])) for r in rs)
             lines.append(f"| {arm} | {rs[0]['rate']:g} | {kind} | {rs[0].get('joint', '-')} | {lev:g} | {len(rs)} | {found}/{len(rs)} | "
                          f"{good}/{len(rs)} | {'-' if not errs else f'{100 * np.median(errs):.0f} %'} | {others} |")
     return lines

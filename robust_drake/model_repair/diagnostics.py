@@ -433,30 +433,54 @@ def setup_change_text(sc: dict, joint_names) -> str:
             "no effect is claimed on the strength of this validation")
 
 
-def heldout_residual(cache, weights, train: np.ndarray, test: np.ndarray) -> np.ndarray:
-    """(N, n) [N m]: the baseline (rigid body + Coulomb + viscous) fitted by weighted least
-    squares on the ``train`` rows of ``cache`` (a ``fitting.ColumnCache``) and its output error
-    on the ``test`` rows (0 elsewhere): the fit run's own out-of-sample error."""
+def setup_explained(sc: dict, fit_cache, weights, fit_residual, val_data, val_residual, effects,
+                    level: float | None = None) -> dict:
+    """The baseline's :func:`setup_change_of` ``sc`` re-judged with the repair's kept ``effects``:
+    an effect missing from the baseline can make the validation run's error differ from the fit
+    run's (the two motions excite it differently), but a setup change (a payload mounted or a
+    sensor re-zeroed between the runs) cannot be explained by effects fitted on the fit run alone.
+    If no joint is flagged any more with the effects in both sides (the fit run's held-out error
+    of the model with them, and ``val_residual``, that model's validation error), ``sc`` is
+    returned unflagged with ``explained_by_effects`` (the test with the effects) and the baseline's
+    flags under ``baseline_joints``; otherwise ``sc`` with the repaired model's test beside it
+    (``with_effects``)."""
+    if not sc.get("flagged") or not effects:
+        return sc
+    again = setup_change_of(fit_cache, weights, fit_residual, val_data, val_residual, level=level, effects=effects)
+    out = dict(sc)
+    if again["flagged"]:
+        out["with_effects"] = again
+        return out
+    out.update(flagged=False, joints=[], baseline_joints=list(sc["joints"]), explained_by_effects=again)
+    return out
+
+
+def heldout_residual(cache, weights, train: np.ndarray, test: np.ndarray, effects=()) -> np.ndarray:
+    """(N, n) [N m]: the baseline (rigid body + Coulomb + viscous) with ``effects`` fitted by
+    weighted least squares on the ``train`` rows of ``cache`` (a ``fitting.ColumnCache``) and its
+    output error on the ``test`` rows (0 elsewhere): the fit run's own out-of-sample error."""
     from robust_drake.identification.fitting import predict_tau
     from robust_drake.identification.least_squares import RANK_TOL, solve_gram
 
-    Gs, gs = cache.gram([], np.asarray(weights, float), [np.asarray(train, bool)])
+    effects = list(effects)
+    Gs, gs = cache.gram(effects, np.asarray(weights, float), [np.asarray(train, bool)])
     theta = solve_gram(Gs[0], gs[0], tol=RANK_TOL)[0]
     r = np.zeros_like(cache.data.tau)
-    r[test] = cache.data.tau[test] - predict_tau(cache, [], theta, test)
+    r[test] = cache.data.tau[test] - predict_tau(cache, effects, theta, test)
     return r
 
 
 def setup_change_of(fit_cache, weights, fit_residual: np.ndarray, val_data, val_residual: np.ndarray,
-                    level: float | None = None) -> dict:
+                    level: float | None = None, effects=()) -> dict:
     """:func:`setup_change` of a repair: the fit side is the baseline refitted on the selection's
     search rows and scored on its confirmation block (``selection.selection_split``: the last
     ``CONFIRM_FRACTION`` of every fit segment, behind a gap of filter settling + residual
     correlation time), the validation side the baseline (fitted on all fit rows) on the
     validation data, ``val_residual``; both on their moving rows (:func:`moving_rows`). Blocks:
     ``decisions.block_length`` of the baseline residual's correlation time and the filter's
-    settling time, in each side's own sample period. Computed once, from the baseline only (no
-    effect is involved in the reference)."""
+    settling time, in each side's own sample period. Computed once from the baseline (no effect
+    in the reference); with ``effects`` (and ``val_residual`` the model with them) the same test
+    of the repaired model, :func:`setup_explained`."""
     from robust_drake.model_repair.decisions import block_length
     from robust_drake.model_repair.selection import correlation_time, filter_settling_time, selection_split
 
@@ -464,7 +488,7 @@ def setup_change_of(fit_cache, weights, fit_residual: np.ndarray, val_data, val_
     split, _ = selection_split(fit, fit_residual)
     confirm = split.confirm if split.confirm.any() else np.ones(fit.N, bool)
     train = split.search if split.confirm.any() else np.ones(fit.N, bool)
-    r_fit = heldout_residual(fit_cache, weights, train, confirm)
+    r_fit = heldout_residual(fit_cache, weights, train, confirm, effects)
     rows_fit = moving_rows(fit) & confirm[:, None]
     if fit_cache.exclude is not None:
         rows_fit &= ~fit_cache.exclude

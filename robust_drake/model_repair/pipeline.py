@@ -524,6 +524,7 @@ def run_repair(fit_paths, options: RepairOptions, validate_paths=None, out_dir=N
         est, sel, fin, cons, replay_out = S.replay_guard(inp, base, est, sel, guard, opts, log)
         nominal = S.compare_nominal(inp, sel, fin, guard, opts, log, base)
     _rate_plausibility(fin.effects_out, opts.robot)
+    setup = _setup_explained(inp, base, sel, fin, setup, log, opts.level)
     warn_msgs = list(dict.fromkeys(recovered + inp.warnings
                                    + sorted({str(w.message) for w in caught})))
     urdf_better = urdf_model_validates_better(nominal, fin.val_residual, guard.tolerance)
@@ -545,6 +546,20 @@ def _setup_change(inp, base, log, level: float | None = None) -> dict:
     sc = DG.setup_change_of(inp.cf, base.weights, base.fit.residual, inp.val, base.val_residual, level=level)
     log("setup change between fit and validation: " + ("FLAGGED on joint(s) " + ", ".join(str(j + 1) for j in sc["joints"])
                                                        if sc["flagged"] else "not flagged"))
+    return sc
+
+
+def _setup_explained(inp, base, sel, fin, setup: dict, log, level: float | None = None) -> dict:
+    """``diagnostics.setup_explained``: a flagged fit/validation mismatch re-judged with the kept
+    effects on both sides (the repaired model's validation residual ``fin.val_residual``), on the
+    baseline test's rows and blocks (split and correlation time from the baseline residual)."""
+    if not setup.get("flagged") or not sel.chosen or fin.val_residual is None:
+        return setup
+    sc = DG.setup_explained(setup, inp.cf, sel.weights, base.fit.residual, inp.val, fin.val_residual, sel.chosen,
+                            level=level)
+    if not sc["flagged"]:
+        log("setup change: the mismatch on joint(s) " + ", ".join(str(j + 1) for j in sc["baseline_joints"])
+            + " is explained by the kept effects (the repaired model validates as well as it fits): not flagged")
     return sc
 
 

@@ -417,17 +417,33 @@ def _md_setup(rep: dict) -> list[str]:
     sc = rep.get("setup_change")
     if not sc:
         return []
-    L = ["", "## Fit run vs validation run (setup change)", "",
-         ("**Flagged**: the validation run does not match the fit run's arm or setup on joint(s) "
-          + ", ".join(_joint(rep, j) for j in sc["joints"]) + "; no effect is claimed on the strength of that validation."
-          if sc["flagged"] else "Not flagged: the validation error is within the fit run's own held-out error and its spread."),
-         "", f"Rule: {sc['rule']}.", "", "| joint | held-out RMS (fit run) | validation RMS | ratio [interval] | p |",
-         "|---|---|---|---|---|"]
-    for r in sc["tests"]:
+    explained = sc.get("explained_by_effects")
+    if sc["flagged"]:
+        head = ("**Flagged**: the validation run does not match the fit run's arm or setup on joint(s) "
+                + ", ".join(_joint(rep, j) for j in sc["joints"]) + "; no effect is claimed on the strength of that validation.")
+    elif explained:
+        head = ("Not flagged: the baseline's validation error is beyond the fit run's own held-out error on joint(s) "
+                + ", ".join(_joint(rep, j) for j in sc["baseline_joints"]) + ", but with the kept effects in both "
+                "(second table) it is within it: an effect the baseline lacks, not a changed setup.")
+    else:
+        head = "Not flagged: the validation error is within the fit run's own held-out error and its spread."
+    L = ["", "## Fit run vs validation run (setup change)", "", head, "", f"Rule: {sc['rule']}."]
+    L += _md_setup_table(rep, sc["tests"], "baseline", "beyond" if explained else "flagged")
+    again = explained or sc.get("with_effects")
+    if again:
+        L += _md_setup_table(rep, again["tests"], "with the kept effects", "flagged")
+    return L
+
+
+def _md_setup_table(rep: dict, tests: list, model: str, mark: str) -> list[str]:
+    L = ["", f"| joint ({model}) | held-out RMS (fit run) | validation RMS | ratio [interval] | p |", "|---|---|---|---|---|"]
+    for r in tests:
         L.append(f"| {_joint(rep, r['joint'])} | {_num(r['rms_ref'], '.4f')} | {_num(r['rms_new'], '.4f')} | "
                  f"{_num(r['ratio'], '.3g')} [{_num(r['ratio_low'], '.3g')}, {_num(r['ratio_high'], '.3g')}] | "
-                 f"{_num(r['p_worse'], '.2g')}{' **flagged**' if r['worse'] else ''} |")
+                 f"{_num(r['p_worse'], '.2g')}{f' **{mark}**' if r['worse'] else ''} |")
     return L
+
+
 def change_text(t: dict | None) -> str:
     """``-27.0 % [-31.2, -22.5] (95 %)`` from a ``PairedTest.as_dict()`` (report.json; an infinite
     interval end is null there: "n/a")."""

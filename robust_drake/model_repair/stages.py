@@ -44,9 +44,10 @@ are wrong (tests/test_hidden_effects.py's sensor-vibration arm: IV within 3 % of
 replay 4-14x better, the validation torque error +6.5 % on joint 1); the report then says that IV
 was tried and why it was dropped (``rejected_effects``, kind ``estimator``).
 
-Validated gain (:func:`validated_gain_guard`, before the never-worse rule): every single-joint effect the
-selection accepted must validate significantly better on its joint than the model without it
-(paired block test on the validation rows, Holm over the effects): "better" is a significant gain
+Validated gain (:func:`validated_gain_guard`, before the never-worse rule): every effect the
+selection accepted must validate significantly better than the model without it, a single-joint
+effect on its joint, one without a joint (a shared delay) on all joints pooled, each weighted by
+its error without it (paired block test on the validation rows, Holm over the effects): "better" is a significant gain
 on the validation run's 20-30 blocks, not only on the selection's 4-block confirmation block, where
 the paired test says "better" too often (``decisions.py``, "Known limit"). A no-effect serial7 log
 (100 Hz, seed 104) had position_dependent[4] accepted that way; now dropped. Velocity shapes: a kind
@@ -694,14 +695,16 @@ def gain_test(inp: Inputs, base: Baseline, est: Estimator, effects, k: int, opts
     friction shape can be told apart: both models are fitted with the rows near that joint's
     velocity reversals left out of its equation (:func:`reversal_rows` of the fit data: there both
     would fit the sticking, which biases the Coulomb level elsewhere) and compared on its
-    validation rows away from its reversals, in blocks of the baseline's length."""
+    validation rows away from its reversals, in blocks of the baseline's length. An effect without
+    a joint (a delay shared by all joints) is judged on every joint's validation rows pooled
+    (:func:`pooled_squared_errors`)."""
     import dataclasses
 
     e = effects[k]
     j = e.joint
     cf, est_k, ids = inp.cf, est, base.blocks.ids if base.blocks is not None else \
         validation_blocks(inp.val, base.val_residual).ids
-    if getattr(e, "velocity_shape", False):
+    if getattr(e, "velocity_shape", False) and j is not None:
         near = np.zeros((inp.fit.N, inp.fit.n), bool)
         near[:, j] = reversal_rows(inp.fit, j)
         cf = inp.cf.excluding(near)
@@ -711,18 +714,30 @@ def gain_test(inp: Inputs, base: Baseline, est: Estimator, effects, k: int, opts
     resid = []
     for effs in (effects[:k] + effects[k + 1:], effects):
         f, _ = est_k.fit(cf, effs, refit_weights(inp, base, est, effs, opts))
-        resid.append(inp.val.tau[:, j] - predict_tau(inp.cv, effs, f.theta)[:, j])
+        r = inp.val.tau - predict_tau(inp.cv, effs, f.theta)
+        resid.append(r[:, j] if j is not None else r)
+    if j is None:
+        return D.paired_test(*pooled_squared_errors(resid[0], resid[1]), ids, float(getattr(opts, "level", D.LEVEL)))
     return D.paired_test(resid[0] ** 2, resid[1] ** 2, ids, float(getattr(opts, "level", D.LEVEL)))
 
 
+def pooled_squared_errors(r_ref: np.ndarray, r_new: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-row squared errors [1] of two (N, n) residuals pooled over the joints, each joint
+    divided by the reference's mean square on it, so that every joint weighs the same whatever its
+    torque scale (the reference side's scale, computed once): sum_j r_j^2 / mean(r_ref_j^2). Joints
+    whose reference residual is zero are left out."""
+    ms = np.mean(np.asarray(r_ref, float) ** 2, axis=0)
+    w = np.where(ms > 0, 1.0 / np.where(ms > 0, ms, 1.0), 0.0)
+    return (np.asarray(r_ref, float) ** 2) @ w, (np.asarray(r_new, float) ** 2) @ w
+
+
 def validated_gain_guard(inp: Inputs, base: Baseline, est: Estimator, sel: Selection, opts, log) -> tuple[Selection, list]:
-    """Keep a single-joint effect only if it validates significantly better on its joint than the
-    model without it (:func:`gain_test`; a velocity shape away from its joint's reversals, module
-    docstring), Holm over the effects tested at one-sided (1 - level) / 2. Effects without a joint
-    (a shared delay) are left to the never-worse rule. Returns the selection and the drops (rows
-    of ``Guard.dropped``)."""
+    """Keep an effect only if it validates significantly better than the model without it
+    (:func:`gain_test`: on its joint, a velocity shape away from its joint's reversals, an effect
+    without a joint pooled over the joints; module docstring), Holm over the effects at one-sided
+    (1 - level) / 2. Returns the selection and the drops (rows of ``Guard.dropped``)."""
     effects, dropped = list(sel.chosen), []
-    single = [k for k, e in enumerate(effects) if e.joint is not None]
+    single = list(range(len(effects)))
     if not single:
         return sel, dropped
     tests = {k: gain_test(inp, base, est, effects, k, opts) for k in single}
@@ -734,7 +749,12 @@ def validated_gain_guard(inp: Inputs, base: Baseline, est: Estimator, sel: Selec
         e, t = effects[k], tests[k]
         j = e.joint
         holm = f" (Holm over the {len(single)} effects)" if len(single) > 1 else ""
-        if getattr(e, "velocity_shape", False):
+        if j is None:
+            why = (f"pooled over every joint's validation rows (each joint weighted by its error without it) it "
+                   f"changes the error {t.text()} over {t.blocks} blocks against the model without it: not a "
+                   f"significant gain{holm}")
+            rule = "validated_gain"
+        elif getattr(e, "velocity_shape", False):
             why = (f"its gain sits within {w:.3g} s of joint {j + 1}'s velocity reversals, where a short stick and "
                    f"the filter's spread of the Coulomb step look like a friction shape; fitted and validated away from "
                    f"them it changes that joint's validation error {t.text()} over {t.blocks} blocks: not a "
