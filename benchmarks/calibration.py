@@ -88,7 +88,7 @@ def _battery_row(item, generated) -> dict:
     m = AB.matches(rep, truth)
     before, after = (np.asarray(rep[k]["rms_validate"], float) for k in ("baseline", "final"))
     return {**item, "t_repair": time.perf_counter() - t0, "claimed": AB.claimed(rep), "verdict": rep["verdict"],
-            "truth": [f"{k}[{'all' if j is None else j + 1}]" for k, j, _ in truth.get("effects", [])]
+            "truth": [f"{k}[{'all' if j is None else j}]" for k, j, _ in truth.get("effects", [])]
             or [truth.get("setup_change") or "none"],
             "named": [(e["kind"], e["found"], e["rel_error"]) for e in m["effects"]], "others": m["others"],
             "flagged": bool(rep["unexplained_structure"]), "never_worse": bool(np.all(after <= before * 1.01)),

@@ -834,7 +834,7 @@ def compare_nominal(inp: Inputs, sel: Selection, fin: Final, guard: Guard, opts,
         return None
     from robust_drake.model_repair import nominal as NM
     nominal = NM.compare_with_nominal(inp.cf, inp.cv, inp.regressor, fin.fit, sel.chosen, sel.candidates,
-                                      sel.weights, sigma_rel=opts.sigma_rel)
+                                      sel.weights, sigma_rel=opts.sigma_rel, level=getattr(opts, "level", None))
     named = nominal.pop("named")
     log(f"nominal (URDF) model: parameter shift chi2 {nominal['chi2']:.1f} "
         f"(99 % limit {nominal['chi2_limit']:.1f}), validate {np.round(nominal['rms_validate'], 4)}")
