@@ -261,7 +261,7 @@ def _ranked(cf, fits, theta_nom, chosen, weights, level, out):
     shoulder and a harmonic-1 position torque (a centre-of-mass offset) both explain the shift its
     stiffness makes; only their fit errors differ."""
     from robust_drake.model_repair import decisions as D
-    from robust_drake.model_repair.stages import validation_blocks
+    from robust_drake.model_repair.selection import validation_blocks
 
     if not fits:
         return None

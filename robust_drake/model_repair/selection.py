@@ -780,4 +780,34 @@ def _recheck(search: _Search, chosen: list, base_confirm) -> tuple[list, list]:
 
 __all__ = ["ColumnCache", "forward_select", "fit_model", "predict", "predict_tau", "implausible", "blocked_folds",
            "confirm_rows", "selection_split", "gap_samples", "filter_settling_time", "correlation_time",
-           "heldout_error", "heldout_residuals", "identifiable_basis", "white_noise_level", "cv_score", "effect_label", "identifiability", "bic", "Step", "SelectionResult", "Split"]
+           "heldout_error", "heldout_residuals", "identifiable_basis", "white_noise_level", "cv_score", "effect_label", "identifiability", "bic", "Step", "SelectionResult", "Split",
+           "Blocks", "validation_blocks"]
+
+
+@dataclass(frozen=True)
+class Blocks:
+    """The validation rows cut into the paired tests' blocks (``decisions.block_ids``), once per
+    repair from the least-squares baseline's validation residual: ``ids`` block number per row,
+    ``block`` [samples] = round((BLOCK_CORRELATIONS t_r + t_f) / dt) (``decisions.block_length``),
+    ``correlation_time_s`` t_r [s] (``selection.correlation_time``), ``settling_time_s`` t_f [s]
+    (``selection.filter_settling_time``)."""
+
+    ids: np.ndarray
+    block: int
+    correlation_time_s: float
+    settling_time_s: float
+
+    def as_dict(self) -> dict:
+        return {"blocks": int(self.ids.max()) + 1 if len(self.ids) else 0, "block_samples": int(self.block),
+                "correlation_time_s": float(self.correlation_time_s), "settling_time_s": float(self.settling_time_s)}
+
+
+def validation_blocks(val: IdentData, residual: np.ndarray) -> Blocks:
+    """:class:`Blocks` of ``val`` from the reference model's validation ``residual`` (N, n)."""
+    from robust_drake.model_repair import decisions as D
+
+    t_r = correlation_time(val, residual)
+    t_f = filter_settling_time(val.filter.cutoff_hz, val.filter.order)
+    shortest = min(int(np.sum(val.segment == s)) for s in np.unique(val.segment))
+    L = D.block_length(val.dt, t_r, t_f, rows=shortest)
+    return Blocks(D.block_ids(val.segment, val.N, L), L, t_r, t_f)

@@ -85,6 +85,7 @@ from robust_drake.identification.data import (IdentData, exclusion_messages, fri
                                               load, load_companion, reversal_half_width_s, reversal_rows)
 from robust_drake.identification.fitting import ColumnCache, effect_label, fit_model, predict_tau  # noqa: F401
 from robust_drake.identification.least_squares import LSResult, load_regressor, solve_wls
+from robust_drake.model_repair.selection import Blocks, validation_blocks  # noqa: F401  (re-exported)
 
 #: non-inferiority margin of the never-worse rule (relative RMS, per joint; :class:`Rule`): a joint is
 #: worse only when the paired block test shows its RMS above the reference's by more than this
@@ -206,35 +207,6 @@ class Baseline:
     def sq_validate(self) -> np.ndarray:
         """Per-row squared validation torque error (N_val, n) [N^2 m^2]: the reference series."""
         return np.asarray(self.val_residual, float) ** 2
-
-
-@dataclass(frozen=True)
-class Blocks:
-    """The validation rows cut into the paired tests' blocks (``decisions.block_ids``), once per
-    repair from the least-squares baseline's validation residual: ``ids`` block number per row,
-    ``block`` [samples] = round((BLOCK_CORRELATIONS t_r + t_f) / dt) (``decisions.block_length``),
-    ``correlation_time_s`` t_r [s] (``selection.correlation_time``), ``settling_time_s`` t_f [s]
-    (``selection.filter_settling_time``)."""
-
-    ids: np.ndarray
-    block: int
-    correlation_time_s: float
-    settling_time_s: float
-
-    def as_dict(self) -> dict:
-        return {"blocks": int(self.ids.max()) + 1 if len(self.ids) else 0, "block_samples": int(self.block),
-                "correlation_time_s": float(self.correlation_time_s), "settling_time_s": float(self.settling_time_s)}
-
-
-def validation_blocks(val: IdentData, residual: np.ndarray) -> Blocks:
-    """:class:`Blocks` of ``val`` from the reference model's validation ``residual`` (N, n)."""
-    from robust_drake.model_repair.selection import correlation_time, filter_settling_time
-
-    t_r = correlation_time(val, residual)
-    t_f = filter_settling_time(val.filter.cutoff_hz, val.filter.order)
-    shortest = min(int(np.sum(val.segment == s)) for s in np.unique(val.segment))
-    L = D.block_length(val.dt, t_r, t_f, rows=shortest)
-    return Blocks(D.block_ids(val.segment, val.N, L), L, t_r, t_f)
 
 
 @dataclass(frozen=True)
