@@ -74,6 +74,8 @@ they act on, Holm).
 The score of a model = mean held-out weighted squared output error, normalised by the baseline's
 (``Step.gain`` pooled as before, ``Step.joint_gain`` on the judged error). The BIC is reported per
 step for information (``bic_before`` / ``bic_after``), not a rule.
+A shared candidate (one parameter for all joints: a command delay) is ranked just above the
+best single-joint candidate of its kind that it explains as well (:func:`_shared_first`).
 Shape-parameter variants (a Stribeck velocity, a delay) are separate candidates; once an effect of
 a kind/joint is chosen the other variants of the same kind and joint leave the pool.
 """
@@ -526,7 +528,8 @@ def forward_select(cache: ColumnCache, candidates: list, min_gain: float = MIN_G
     c_base = float(np.sum(base_confirm[search.split.confirm] ** 2)) if search.has_confirm else float("nan")
     steps, pool, ranking = [], list(candidates), []
     while pool and len(cur["effects"]) < max_effects:
-        trials = sorted((_trial(search, cur, e) for e in pool), key=lambda t: -t["joint_gain"])
+        trials = _shared_first(search, cur, sorted((_trial(search, cur, e) for e in pool),
+                                                   key=lambda t: -t["joint_gain"]))
         ranking = [{"label": effect_label(t["effect"]), "kind": t["effect"].kind, "joint": t["effect"].joint,
                     "score": t["score"] / baseline_score if np.isfinite(t["score"]) else None,
                     "joint_gain": t["joint_gain"] if np.isfinite(t["joint_gain"]) else None, "note": t["why"]}
@@ -607,6 +610,37 @@ def _trial(search: _Search, cur: dict, e) -> dict:
     j = _target(e)
     before, after = (cur["per"][j], per[j]) if j is not None else (cur["score"], sc)
     return dict(out, score=sc, per=per, bic=b, fit=_without_residual(fit), joint_gain=float((before - after) / before))
+
+
+def _shared_first(search: _Search, cur: dict, trials: list) -> list:
+    """The ranking with each shared candidate (a kind with one parameter for all joints,
+    ``Effect.shared``, e.g. one command delay) moved just above the highest-ranked single-joint
+    candidate of the same kind that it explains as well: pooled CV score lower (better on all
+    joints together) and, on that candidate's joint, its held-out error not significantly above
+    the single-joint one's (paired block test on the search rows, one-sided (1 - level) / 2).
+    Same number of parameters, one explanation for every joint: the single-joint version wins
+    only where the data prefer it (it then validates on its own joint)."""
+    from robust_drake.model_repair.decisions import paired_test
+
+    alpha = (1.0 - search.level) / 2.0
+    out = list(trials)
+    for S in [t for t in trials if getattr(t["effect"], "shared", False) and _target(t["effect"]) is None
+              and np.isfinite(t["score"])]:
+        i_s = next(i for i, t in enumerate(out) if t is S)
+        for i, t in enumerate(out[:i_s]):
+            e = t["effect"]
+            if e.kind != S["effect"].kind or _target(e) is None or not np.isfinite(t["score"]):
+                continue
+            if S["score"] >= t["score"]:
+                continue
+            j = _target(e)
+            single = _series(search.cv(cur["effects"] + [e]), j)
+            shared = _series(search.cv(cur["effects"] + [S["effect"]]), j)
+            if paired_test(shared, single, search.ids_search, search.level).p_better < alpha:
+                continue  # the single-joint version explains its joint significantly better
+            out.insert(i, out.pop(i_s))
+            break
+    return out
 
 
 def _without_residual(fit):
