@@ -479,9 +479,7 @@ class _Search:
                 return np.inf, None, np.inf, fit, names, slices, why
         R = self.cv(effects)
         per = np.sum(R**2, axis=0) / max(sum(int(t.sum()) for t, _ in self.split.folds), 1)
-        r = (self.cache.data.tau - predict_tau(self.cache, effects, fit.theta)) * self.weights[None, :]
-        b = bic(float(np.sum(r**2)), self.rows, fit.rank, self.n_eff_rows)
-        return float(np.mean(per)), per, b, fit, names, slices, ""
+        return float(np.mean(per)), per, _LazyBIC(self, list(effects), fit.theta, fit.rank), fit, names, slices, ""
 
     def explained(self, effects, fit) -> np.ndarray:
         """RMS per joint [N m] of the last effect's columns x its coefficients (rows in use)."""
@@ -489,6 +487,23 @@ class _Search:
         mask = np.zeros(slices[-1].stop, bool)
         mask[slices[-1]] = True
         return np.asarray(self.cache.rms(self.cache.explicit_prediction(effects, fit.theta, mask)), float)
+
+
+class _LazyBIC:
+    """The BIC of a fitted candidate (:func:`bic` of its weighted output error on all rows),
+    computed when first read (``float(...)``): it is informational (module docstring) and read only
+    for the candidates a step records, so the other candidates skip one all-rows output-error
+    prediction each (the torque-dependent fixed point of ``predict_tau`` when the model has one)."""
+
+    def __init__(self, search, effects, theta, rank):
+        self._args, self._value = (search, effects, theta, rank), None
+
+    def __float__(self) -> float:
+        if self._value is None:
+            search, effects, theta, rank = self._args
+            r = (search.cache.data.tau - predict_tau(search.cache, effects, theta)) * search.weights[None, :]
+            self._value, self._args = bic(float(np.sum(r**2)), search.rows, rank, search.n_eff_rows), None
+        return self._value
 
 
 def _decide(gain, c_gain, min_gain, confirm_gain, has_confirm, b_best, b):
