@@ -642,6 +642,7 @@ def _shared_first(search: _Search, cur: dict, trials: list) -> list:
     for S in [t for t in trials if getattr(t["effect"], "shared", False) and _target(t["effect"]) is None
               and np.isfinite(t["score"])]:
         i_s = next(i for i, t in enumerate(out) if t is S)
+        R_shared = None  # the shared candidate's held-out residuals, computed once when first needed
         for i, t in enumerate(out[:i_s]):
             e = t["effect"]
             if e.kind != S["effect"].kind or _target(e) is None or not np.isfinite(t["score"]):
@@ -650,7 +651,8 @@ def _shared_first(search: _Search, cur: dict, trials: list) -> list:
                 continue
             j = _target(e)
             single = _series(search.cv(cur["effects"] + [e]), j)
-            shared = _series(search.cv(cur["effects"] + [S["effect"]]), j)
+            R_shared = search.cv(cur["effects"] + [S["effect"]]) if R_shared is None else R_shared
+            shared = _series(R_shared, j)
             if paired_test(shared, single, search.ids_search, search.level).p_better < alpha:
                 continue  # the single-joint version explains its joint significantly better
             out.insert(i, out.pop(i_s))
