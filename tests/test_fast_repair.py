@@ -86,6 +86,8 @@ def naive_predict(cache, effects, theta, rows=None):
     d, tau_hat = cache.data, m.copy()
     for _ in range(30):
         new = m + sum(e.evaluate_columns(d.q[rows], d.qd[rows], d.qdd[rows], tau_hat) @ theta[sl] for e, sl in imp)
+        if cache.keep is not None:  # rows left out (stiction) predict 0, as their zeroed torque
+            new = new * cache.keep[rows]
         done = np.max(np.abs(new - tau_hat)) < 1e-10
         tau_hat = new
         if done:
@@ -93,7 +95,7 @@ def naive_predict(cache, effects, theta, rows=None):
     return tau_hat
 
 
-def naive_cv_score(cache, effects, weights, folds, icache=None):
+def naive_cv_score(cache, effects, weights, folds, icache=None, per_joint=False):
     """Blocked cross validation the plain way: for every fold, least squares (or IV) on the
     stacked training rows, then the output error on the held-out rows."""
     Y, _, _ = cache.model(effects)
@@ -110,9 +112,9 @@ def naive_cv_score(cache, effects, weights, folds, icache=None):
             B = (Z[train] * w[None, :, None]).reshape(-1, p)
             theta = np.linalg.solve(B.T @ A, B.T @ b)
         r = (tau[test] - naive_predict(cache, effects, theta, test)) * w[None, :]
-        total += float(np.sum(r**2))
+        total = total + (np.sum(r**2, axis=0) if per_joint else float(np.sum(r**2)))
         count += r.size
-    return total / count
+    return total if per_joint else total / count
 
 
 class NaiveCache(ColumnCache):
@@ -126,13 +128,19 @@ class NaiveCache(ColumnCache):
         return ([np.einsum("nip,niq->pq", Zw[m], Yw[m]) for m in masks],
                 [np.einsum("nip,ni->p", Zw[m], bw[m]) for m in masks])
 
-    def explicit_prediction(self, effects, theta, mask=None, rows=None):
+    def explicit_prediction(self, effects, theta, mask=None, rows=None, joints=None):
         Y = self.model(effects)[0]
         mask = np.ones(Y.shape[2], bool) if mask is None else np.asarray(mask, bool)
         rows = slice(None) if rows is None else rows
         return Y[rows][:, :, mask] @ np.asarray(theta)[mask]
 
-    def fit_ls(self, effects, weights=None, parts=None, warn=True):
+    def joint_gram(self, effects, masks):
+        Y, tau = self.model(effects)[0], self.data.tau
+        return (np.array([np.einsum("nip,niq->ipq", Y[m], Y[m]) for m in masks]),
+                np.array([np.einsum("nip,ni->ip", Y[m], tau[m]) for m in masks]),
+                np.array([np.sum(tau[m] ** 2, axis=0) for m in masks]))
+
+    def fit_ls(self, effects, weights=None, parts=None, warn=True, residual=True):
         Y, names, _ = self.model(effects)
         return solve_ls(Y, self.data.tau, names, weights=weights, warn=warn)
 
@@ -149,6 +157,42 @@ def test_cv_score_equals_plain_least_squares_per_fold(reg):
         again = cv_score(cache, effects, w, folds)  # from the memo
         assert _close(fast, naive_cv_score(cache, effects, w, folds)), effects
         assert again == fast
+
+
+class CrossTorque(make_effect("torque_scale", 0).__class__):
+    """An implicit kind whose joint-j column reads another joint's torque (not ``own_joint_tau``)."""
+
+    kind = "cross_torque_test"
+    own_joint_tau = False
+
+    def _features(self, j, q, qd, qdd, tau, taud):
+        return -0.1 * tau[:, 1 - j:2 - j]
+
+
+def test_heldout_sse_per_joint_equals_the_residual_path_and_plain_folds(reg):
+    """Per joint, the Gram-product held-out error (explicit joints) and the joint-restricted
+    prediction (implicit joints) equal the plain folds' residuals: explicit models, an own-joint
+    implicit effect (torque scale, dead zone), one that reads the other joint's torque (every
+    joint predicted), with a gap between the folds, with instruments and with stiction rows left out."""
+    from robust_drake.model_repair.selection import heldout_residuals, heldout_sse
+
+    data = _data(reg)
+    folds = blocked_folds(data, 4, gap=7)
+    w = np.array([1.0 / 0.02, 1.0 / 0.05])
+    cands = _candidates()
+    dz = make_effect("dead_zone", 0, threshold=0.05)
+    exclude = np.zeros((data.N, data.n), bool)
+    exclude[100:160, 0] = True
+    caches = [(ColumnCache(data, reg), None), (ColumnCache(data, reg, exclude=exclude), None),
+              (ColumnCache(data, reg), ColumnCache(_data(reg, cutoff=4.0), reg))]
+    for cache, icache in caches:
+        for effects in ([], [cands[2]], [cands[2], cands[5]], [dz, cands[3]], [CrossTorque(joint=0)]):
+            sse, rows = heldout_sse(cache, effects, w, folds, icache)
+            R, held = heldout_residuals(cache, effects, w, folds, icache)
+            assert rows == int(held.sum())
+            assert _close(sse, np.sum(R**2, axis=0)), effects
+            if icache is None:
+                assert _close(sse, naive_cv_score(cache, effects, w, folds, per_joint=True)), effects
 
 
 def test_cv_score_with_instruments_equals_plain_iv(reg):

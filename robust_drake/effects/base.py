@@ -195,6 +195,10 @@ class Effect:
     kind: ClassVar[str] = ""
     coef_names: ClassVar[tuple[str, ...]] = ("c",)
     needs_tau: ClassVar[bool] = False  # the block has a "tau" input
+    #: with ``needs_tau``: joint j's features read the torque of joint j only (``tau[:, j]``), so
+    #: an output-error prediction of joint j needs no other joint's (``fitting.predict_tau``'s
+    #: ``joints``). False (the safe default for a user's kind): every joint is predicted.
+    own_joint_tau: ClassVar[bool] = False
     needs_qdd: ClassVar[bool] = False  # the columns use acceleration
     modifies_plant: ClassVar[bool] = False  # realised by apply_to_plant, block() is None
     shared: ClassVar[bool] = False  # joint=None -> one coefficient shared by all joints

@@ -133,6 +133,7 @@ class DeadZone(Effect):
     inside the band)."""
 
     kind = "dead_zone"
+    own_joint_tau = True  # _features reads tau[:, j]
     coef_names = ("share",)
     needs_tau = True
     default_shape = {"threshold": 0.1}

@@ -86,6 +86,7 @@ class LoadDependentFriction(Effect):
     Coefficient ``load_coefficient`` mu (dimensionless). Block input ``tau`` = commanded torque."""
 
     kind = "load_dependent_friction"
+    own_joint_tau = True  # _features reads tau[:, j]
     coef_names = ("load_coefficient",)
     #: friction grows with the transmitted load (mu >= 0); mu > 1 would make the gear lose more
     #: than it transmits

@@ -40,6 +40,7 @@ class TorqueScale(Effect):
     needs an absolute reference (a known mass or a torque sensor)."""
 
     kind = "torque_scale"
+    own_joint_tau = True  # _features reads tau[:, j]
     coef_names = ("gain_error",)
     #: a motor constant wrong by more than 50 %, or -> -1 (the trivial "model = 0" solution of an
     #: errors-in-variables column), is no motor-constant error

@@ -135,12 +135,16 @@ class ColumnCache:
         Y = np.array(Y, dtype=float, order="C")  # our own copy (an effect may hold its array)
         if Y.ndim == 2:
             Y = Y[:, :, None]
-        parallel_filter(self.data, Y, out=Y)  # in place: no filtered and masked copies at once
+        joints = nonzero_joints(Y)
+        if joints is None:
+            parallel_filter(self.data, Y, out=Y)  # in place: no filtered and masked copies at once
+        elif joints:  # a single-joint effect: the zero-phase filter maps the zero joints to exact zeros
+            Y[:, list(joints), :] = parallel_filter(self.data, np.ascontiguousarray(Y[:, list(joints), :]))
         if self.keep is not None:
             Y *= self.keep[:, :, None]
         self._effects[key] = (Y, list(names), effect)
         self._held[key] = effect
-        self._joints[key] = nonzero_joints(Y)
+        self._joints[key] = joints if self.keep is None else nonzero_joints(Y)
         self._effect_bytes += Y.nbytes
         while self._effect_bytes > self.memo_bytes and len(self._effects) > 1:
             old = next(iter(self._effects))
@@ -204,28 +208,41 @@ class ColumnCache:
             return Y, self.names(effects), slices
         return np.concatenate(blocks, axis=2), self.names(effects), slices
 
-    def fit_ls(self, effects, weights=None, parts=None, warn: bool = True) -> LSResult:
+    def tau_sq(self, weights) -> float:
+        """tau^T W tau = sum_j w_j^2 sum_rows tau_j^2 over the rows in use (memoised per weights)."""
+        w2 = np.asarray(weights, float) ** 2
+        key = ("tt", w2.tobytes())
+        if key not in self._grams:
+            self._grams[key] = float(np.sum(self.data.tau**2 @ w2))
+        return self._grams[key]
+
+    def fit_ls(self, effects, weights=None, parts=None, warn: bool = True, residual: bool = True) -> LSResult:
         """``solve_ls(*self.model(effects)[:2] ...)`` (weighted least squares, equation-error
         residual) from the memoised block Gram matrices of :meth:`gram`: ``parts`` is a list of
         boolean row masks that partition the rows (e.g. the cross-validation folds, whose
-        products the held-out score reuses); default all rows."""
+        products the held-out score reuses); default all rows. ``residual`` False: no (N, n)
+        residual is formed (``residual`` None, ``rms`` NaN; ``rss_weighted`` from the Gram
+        matrix): the selection's candidate fits, which read the coefficients."""
         w = np.ones(self.data.n) if weights is None else np.asarray(weights, float)
         parts = [np.ones(self.data.N, bool)] if parts is None else parts
         if not np.array_equal(np.sum(parts, axis=0), np.ones(self.data.N)):
             raise ValueError("parts must partition the rows")
         Gs, gs = self.gram(effects, w, parts)
-        return solve_normal(sum(Gs), sum(gs), lambda th: self.data.tau - self.explicit_prediction(effects, th),
-                            self.names(effects), w, self.data.N, warn=warn, rows=self.rows)
+        resid = (lambda th: self.data.tau - self.explicit_prediction(effects, th)) if residual else self.tau_sq(w)
+        return solve_normal(sum(Gs), sum(gs), resid, self.names(effects), w, self.data.N, warn=warn, rows=self.rows)
 
-    def explicit_prediction(self, effects, theta, mask=None, rows=None) -> np.ndarray:
+    def explicit_prediction(self, effects, theta, mask=None, rows=None, joints=None) -> np.ndarray:
         """sum over blocks of Y_block[rows] @ theta_block (N_rows, n), skipping the columns where
         ``mask`` (p,) is False: ``Y[rows][:, :, mask] @ theta[mask]`` without the joined copy.
+        ``joints`` (a list; None = all): only those joints' columns are computed, the others are 0.
         The last all-rows prediction is remembered (the selection's fit residual and its output
         error ask for the same one)."""
         blocks, keys, slices = self.blocks(effects)
         theta = np.asarray(theta, float)
         p = slices[-1].stop if slices else self.base.shape[2]
         mask = np.ones(p, bool) if mask is None else np.asarray(mask, bool)
+        if joints is not None:
+            return self._joint_prediction(blocks, slices, theta, mask, rows, list(joints))
         memo = (tuple(keys), mask.tobytes(), theta.tobytes()) if rows is None else None
         if memo is not None and self._last_prediction[0] == memo:
             return self._last_prediction[1].copy()
@@ -248,6 +265,54 @@ class ColumnCache:
         if memo is not None:
             self._last_prediction = (memo, out.copy())
         return out
+
+    def _joint_prediction(self, blocks, slices, theta, mask, rows, joints) -> np.ndarray:
+        """:meth:`explicit_prediction` on ``joints`` only (N_rows, n), the other joints 0."""
+        spans = [slice(0, self.base.shape[2])] + slices
+        rows = slice(None) if rows is None else rows
+        n_rows = len(self.data.tau[rows])
+        out = np.zeros((n_rows, self.data.n))
+        for Y, sl in zip(blocks, spans):
+            m = mask[sl]
+            if not m.any():
+                continue
+            for j in joints:
+                out[:, j] += Y[rows, j, :][:, m] @ theta[sl][m]
+        return out
+
+    def joint_gram(self, effects, masks):
+        """Per joint and row mask, the unweighted products of joint j's equations:
+        ``G[m, j] = sum_{rows in mask m} Y[r, j, :]^T Y[r, j, :]`` (p, p), ``g[m, j] = sum Y^T tau_j``
+        (p,), ``tt[m, j] = sum tau_j^2``, memoised per block pair like :meth:`gram` (a
+        single-joint block's products on its joint only). The squared output error of joint j
+        on mask m of an explicit model theta is tt - 2 theta^T g + theta^T G theta
+        (``selection.heldout_sse``)."""
+        yb, keys, slices = self.blocks(effects)
+        spans = [slice(0, self.base.shape[2])] + slices
+        p, n = spans[-1].stop, self.data.n
+        runs = [row_runs(mk, self.data.N) for mk in masks]
+        digest = hashlib.blake2b(np.packbits(np.asarray(masks, bool)).tobytes(), digest_size=16).digest()
+        ctx = (len(masks), digest)
+        G, g = np.zeros((len(masks), n, p, p)), np.zeros((len(masks), n, p))
+        tkey = ("Jt",) + ctx
+        if tkey not in self._grams:
+            self._grams[tkey] = np.array([[sum(float(self.data.tau[r, j] @ self.data.tau[r, j]) for r in rr)
+                                           for j in range(n)] for rr in runs])
+        tau = self.data.tau[:, :, None]
+        for a, (Ya, ka, sa) in enumerate(zip(yb, keys, spans)):
+            ja = _joints_of(self, ka)
+            key = ("Jg", ka) + ctx
+            if key not in self._grams:
+                self._grams[key] = _joint_sums(Ya, tau, runs, ja)[..., 0]
+            g[:, :, sa] = self._grams[key]
+            for Yb, kb, sb in zip(yb[a:], keys[a:], spans[a:]):
+                key = ("JG", ka, kb) + ctx
+                if key not in self._grams:
+                    self._grams[key] = _joint_sums(Ya, Yb, runs, _common_joints(ja, _joints_of(self, kb)))
+                G[:, :, sa, sb] = self._grams[key]
+                if sb != sa:
+                    G[:, :, sb, sa] = np.swapaxes(self._grams[key], 2, 3)
+        return G, g, self._grams[tkey]
 
     def qr_r(self, effects, weights, left: "ColumnCache | None" = None, block_rows: int = QR_ROWS) -> np.ndarray:
         """R (p+1, p+1) of the QR factorisation of [A | b], A = W Y (``self.model(effects)`` with
@@ -349,6 +414,18 @@ def _common_joints(a, b):
     return tuple(j for j in a if j in b)
 
 
+def _joint_sums(A: np.ndarray, B: np.ndarray, runs: list, joints=None) -> np.ndarray:
+    """(masks, n, a, b): per row mask (its runs) and joint j, sum_rows A[r, j, :]^T B[r, j, :]
+    (zeros on the joints outside ``joints``, None = all)."""
+    n = A.shape[1]
+    out = np.zeros((len(runs), n, A.shape[2], B.shape[2]))
+    for m, rr in enumerate(runs):
+        for j in range(n) if joints is None else joints:
+            for r in rr:
+                out[m, j] += A[r, j, :].T @ B[r, j, :]
+    return out
+
+
 def _wsum(A: np.ndarray, B: np.ndarray, w2: np.ndarray, runs: list[slice], joints=None) -> np.ndarray:
     """sum_j w2_j sum_{rows in runs} A[rows, j, :]^T B[rows, j, :]: per run one product of the
     stacked (rows * n, p) views, the joint weights applied to a copy of the narrower block.
@@ -408,18 +485,23 @@ def implicit_term(effect, q, qd, qdd, tau, coef) -> np.ndarray:
     return out
 
 
-def predict_tau(cache: "ColumnCache", effects, theta, rows=None, iterations: int = 30) -> np.ndarray:
+def predict_tau(cache: "ColumnCache", effects, theta, rows=None, iterations: int = 30,
+                joints=None) -> np.ndarray:
     """Output-error prediction of the measured torque (N, n).
 
     Equation error r = tau - Y theta is the right quantity to *fit* but not to *judge* a model
     whose columns contain tau itself: a torque_scale column -tau_j with coefficient -> -1 would
     shrink the equation error of joint j without predicting anything. So models are judged on
     tau - tau_hat with tau_hat the fixed point of tau_hat = Y_explicit theta + Phi(tau_hat) c
-    (unfiltered Phi; a contraction for the admissible |c| < 1, see ``PLAUSIBLE``)."""
+    (unfiltered Phi; a contraction for the admissible |c| < 1, see ``PLAUSIBLE``).
+
+    ``joints`` (a list; None = all): only those joints' columns are predictions (the others are
+    not); exact when every implicit effect reads its own joint's torque only
+    (``Effect.own_joint_tau``): the caller checks (``selection.heldout_sse``)."""
     _, _, slices = cache.blocks(effects)
     p = slices[-1].stop if slices else cache.base.shape[2]
     imp, mask = implicit_mask(effects, slices, p)
-    m = cache.explicit_prediction(effects, theta, mask, rows)
+    m = cache.explicit_prediction(effects, theta, mask, rows, joints)
     rows = slice(None) if rows is None else rows
     if not imp:
         return m

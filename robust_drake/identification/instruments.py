@@ -42,7 +42,9 @@ import numpy as np
 from scipy import stats
 
 from robust_drake.identification.fitting import ColumnCache, fit_model, predict_tau
-from robust_drake.identification.least_squares import LS_ROWS, LSResult, RANK_TOL, _gram_eig, identifiability
+from robust_drake.identification.least_squares import (
+    LS_ROWS, LSResult, RANK_TOL, _gram_eig, identifiability, rss_from_gram,
+)
 
 #: instrument cut-off as a fraction of the data cut-off
 INSTRUMENT_RATIO = 0.5
@@ -97,7 +99,9 @@ def solve_iv_normal(YY, ZY, ZZ, Zb, residual_of, names: list[str], w: np.ndarray
     p) and ``residual_of(theta)`` = tau - Y theta (N, n): for callers that hold them already
     (``fitting.ColumnCache.gram``). Columns are scaled by d = sqrt(diag(Y^T W Y)).
     ``sandwich``: (instrument column blocks, IdentData or None[, leverages]) for :func:`iv_sandwich`; with it
-    ``cov`` is that sandwich, without it the homoscedastic covariance (``covariance`` says which)."""
+    ``cov`` is that sandwich, without it the homoscedastic covariance (``covariance`` says which).
+    ``residual_of`` may instead be (tau^T W tau, Y^T W tau): no (N, n) residual is formed
+    (``residual`` None, ``rms`` NaN; not with ``sandwich``)."""
     n, p = len(w), len(Zb)
     # rank as least squares has it (least_squares.solve_gram): the identifiable subspace of the
     # column-normalised Y^T W Y; the IV equations are solved on that subspace (theta has no component
@@ -115,9 +119,11 @@ def solve_iv_normal(YY, ZY, ZZ, Zb, residual_of, names: list[str], w: np.ndarray
     except np.linalg.LinAlgError:  # instruments weak along some identifiable direction
         ZYi = Vk @ np.linalg.pinv(reduced, rcond=RANK_TOL) @ Vk.T
     theta = ZYi @ (Zb / d) / d
-    resid = residual_of(theta)
-    r_w = resid * w[None, :]
-    rss = float(np.sum(r_w**2))
+    if callable(residual_of):
+        resid = residual_of(theta)
+        rss = float(np.sum((resid * w[None, :]) ** 2))
+    else:  # (tau^T W tau, Y^T W tau): no (N, n) residual (least_squares.solve_normal)
+        resid, rss = None, rss_from_gram(YY, residual_of[1], float(residual_of[0]), theta)
     cond, rank, unident, _ = identifiability(None, names, RANK_TOL, G=YY)
     sigma2 = rss / max(N * n - rank, 1)
     cov0 = sigma2 * ZYi @ (ZZ / dd) @ ZYi.T / dd / max(n_eff_factor, 1e-12)
@@ -129,7 +135,7 @@ def solve_iv_normal(YY, ZY, ZZ, Zb, residual_of, names: list[str], w: np.ndarray
     se = np.sqrt(np.maximum(np.diag(cov), 0.0))
     for u in unident:
         se[names.index(u)] = np.inf
-    rms = np.sqrt(np.mean(resid**2, axis=0))
+    rms = np.full(n, np.nan) if resid is None else np.sqrt(np.mean(resid**2, axis=0))
     res = LSResult(theta=theta, names=list(names), se=se, sigma=rms, weights=w, cond=cond, rank=rank,
                    unidentifiable=unident, residual=resid, rms=rms, N=N, rss_weighted=rss)
     res.cov, res.cov_homoscedastic, res.covariance = cov, cov0, kind
@@ -218,17 +224,18 @@ def iv_sandwich(Ainv, Z_blocks, residual, weights, data=None, n_eff_factor: floa
 
 
 def fit_iv_blocks(cache: ColumnCache, icache: ColumnCache, effects, weights, parts=None,
-                  n_eff_factor: float = 1.0, robust: bool = False) -> LSResult:
+                  n_eff_factor: float = 1.0, robust: bool = False, residual: bool = True) -> LSResult:
     """``solve_iv(cache.model(effects), icache.model(effects), ...)`` from the memoised block
     products of :meth:`ColumnCache.gram` (``parts``: row masks partitioning the rows, e.g. the
     cross-validation folds whose products the held-out score reuses; default all rows).
     ``robust``: ``cov`` is the sandwich of :func:`iv_sandwich` from the instrument blocks (as
-    :func:`solve_iv` with ``data=cache.data``; the selection does not need it), else homoscedastic."""
+    :func:`solve_iv` with ``data=cache.data``; the selection does not need it), else homoscedastic.
+    ``residual`` False: no (N, n) residual (``solve_iv_normal``; the selection's candidate fits)."""
     w = np.asarray(weights, float)
     parts = [np.ones(cache.data.N, bool)] if parts is None else parts
     if not np.array_equal(np.sum(parts, axis=0), np.ones(cache.data.N)):
         raise ValueError("parts must partition the rows")
-    YY, _ = cache.gram(effects, w, parts)
+    YY, Yb = cache.gram(effects, w, parts)
     ZY, Zb = cache.gram(effects, w, parts, left=icache)
     ZZ, _ = icache.gram(effects, w, parts)
     sandwich = None
@@ -242,9 +249,10 @@ def fit_iv_blocks(cache: ColumnCache, icache: ColumnCache, effects, weights, par
         w2 = (w**2)[None, :, None]
         lev = sum(np.einsum("kjp,kjp->k", U[:, :, spans[b]:spans[b + 1]], Z * w2) for b, Z in enumerate(Zb_))
         sandwich = (Zb_, cache.data, lev)
-    return solve_iv_normal(sum(YY), sum(ZY), sum(ZZ), sum(Zb),
-                           lambda th: cache.data.tau - cache.explicit_prediction(effects, th),
-                           cache.names(effects), w, cache.data.N, n_eff_factor, sandwich)
+    resid = ((lambda th: cache.data.tau - cache.explicit_prediction(effects, th)) if residual or robust
+             else (cache.tau_sq(w), sum(Yb)))
+    return solve_iv_normal(sum(YY), sum(ZY), sum(ZZ), sum(Zb), resid, cache.names(effects), w, cache.data.N,
+                           n_eff_factor, sandwich)
 
 
 def ls_covariance(Y: np.ndarray, tau: np.ndarray, theta: np.ndarray, weights, n_eff_factor: float = 1.0):

@@ -199,18 +199,24 @@ def solve_normal(G: np.ndarray, g: np.ndarray, residual_of, names: list[str], w:
                  tol: float = RANK_TOL, warn: bool = True, rows=None) -> LSResult:
     """:func:`solve_ls` from its normal equations G = Y^T W Y, g = Y^T W tau (W = diag(w_j^2)
     over joints) and ``residual_of(theta)`` = tau - Y theta (N, n), for callers that hold the
-    Gram matrix already (``fitting.ColumnCache.gram``); ``rows`` as in :func:`solve_ls`."""
+    Gram matrix already (``fitting.ColumnCache.gram``); ``rows`` as in :func:`solve_ls`.
+
+    ``residual_of`` may instead be the float tau^T W tau: then no (N, n) residual is formed
+    (``residual`` None, ``rms`` and ``sigma`` NaN) and the weighted residual sum of squares is
+    :func:`rss_from_gram` (for the selection's many candidate fits, which read the coefficients)."""
     n = len(w)
     if not (np.all(np.isfinite(G)) and np.all(np.isfinite(g))):
         raise DataError("least squares: the regressor or the torque holds NaN or infinite values (clean the data; "
                         "nothing is dropped silently)")
     cond, rank, unident, _ = identifiability(None, names, tol, G=G)
     theta, cov0, keep, s, V, scale = solve_gram(G, g, tol)
-    resid = residual_of(theta)
-    r_w = resid * w[None, :]
-    rss_w = float(np.sum(r_w**2))
-    used = np.ones((N, n)) if rows is None else np.asarray(rows, float)
-    dof = max(int(used.sum()) - rank, 1)
+    if callable(residual_of):
+        resid = residual_of(theta)
+        rss_w = float(np.sum((resid * w[None, :]) ** 2))
+    else:
+        resid, rss_w = None, rss_from_gram(G, g, float(residual_of), theta)
+    used_count = N * n if rows is None else int(np.sum(rows))
+    dof = max(used_count - rank, 1)
     cov = np.asarray(cov0, float) * rss_w / dof
     se = np.sqrt(np.maximum(np.diag(cov), 0.0))
     for u in unident:
@@ -220,11 +226,22 @@ def solve_normal(G: np.ndarray, g: np.ndarray, residual_of, names: list[str], w:
         msgs.append(poor_excitation_text(cond, unident))
         if warn:
             warnings.warn(msgs[-1], DataWarning, stacklevel=3)
-    rms = np.sqrt(np.sum(resid**2 * used, axis=0) / np.maximum(used.sum(axis=0), 1.0))
+    if resid is None:
+        rms = np.full(n, np.nan)
+    else:
+        used = np.ones((N, n)) if rows is None else np.asarray(rows, float)
+        rms = np.sqrt(np.sum(resid**2 * used, axis=0) / np.maximum(used.sum(axis=0), 1.0))
     return LSResult(
         theta=theta, names=list(names), se=se, sigma=rms, weights=w, cond=cond, rank=rank,
         unidentifiable=unident, residual=resid, rms=rms, N=N, rss_weighted=rss_w, warnings=msgs, cov=cov,
     )
+
+
+def rss_from_gram(G: np.ndarray, g: np.ndarray, tt: float, theta: np.ndarray) -> float:
+    """||b - A theta||^2 = b^T b - 2 theta^T A^T b + theta^T A^T A theta from G = A^T A,
+    g = A^T b, tt = b^T b (clipped at 0 against round-off)."""
+    theta = np.asarray(theta, float)
+    return max(float(tt - 2.0 * theta @ g + theta @ G @ theta), 0.0)
 
 
 def poor_excitation_text(cond: float, unidentifiable: list[str]) -> str:

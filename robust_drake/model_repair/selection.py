@@ -296,10 +296,25 @@ def _fold_theta(G_all, g_all, B) -> np.ndarray:
     return B @ z
 
 
+def _fold_thetas(cache: "ColumnCache", effects, weights, folds, icache=None) -> list:
+    """theta of every fold = [(test, train)], fitted on its training rows (:func:`heldout_residuals`)."""
+    used = np.zeros(cache.data.N, bool)
+    for test, train in folds:
+        used |= test | train
+    # Z^T W Y, Z^T W tau over the used rows, the other rows, and each fold's left-out rows, from the
+    # memoised block products (fitting.ColumnCache.gram: shared by every candidate of a step)
+    Gs, gs = cache.gram(effects, weights, [used, ~used] + [used & ~train for _, train in folds], icache)
+    G_all, g_all = Gs[0], gs[0]
+    if icache is not None:
+        return [np.linalg.lstsq(G_all - Gx, g_all - gx, rcond=None)[0] for Gx, gx in zip(Gs[2:], gs[2:])]
+    B = identifiable_basis(Gs[0] + Gs[1])
+    return [_fold_theta(G_all - Gx, g_all - gx, B) for Gx, gx in zip(Gs[2:], gs[2:])]
+
+
 def heldout_residuals(cache: "ColumnCache", effects, weights, folds, icache=None) -> tuple[np.ndarray, np.ndarray]:
     """(R, test): weighted held-out output errors R (N, n) -- row i of fold k's block predicted by
     the model fitted on fold k's training rows -- and the mask of rows held out by some fold
-    (R is 0 elsewhere).
+    (R is 0 elsewhere; the folds' test blocks are disjoint).
 
     Least squares: every fold is solved on the identifiable subspace of the **whole data's**
     Gram matrix (all N rows, :func:`identifiable_basis` at ``RANK_TOL``), so a fold cannot fit a
@@ -308,30 +323,64 @@ def heldout_residuals(cache: "ColumnCache", effects, weights, folds, icache=None
     1e-10 and 1.18 with ``RANK_TOL``. With ``icache`` (instrument columns on the same rows,
     ``instruments.py``) every fold is fitted by instrumental variables, (Z^T W Y)^-1 Z^T W tau."""
     tau = cache.data.tau
-    used = np.zeros(len(tau), bool)
-    for test, train in folds:
-        used |= test | train
-    # Z^T W Y, Z^T W tau over the used rows, the other rows, and each fold's left-out rows, from the
-    # memoised block products (fitting.ColumnCache.gram: shared by every candidate of a step)
-    Gs, gs = cache.gram(effects, weights, [used, ~used] + [used & ~train for _, train in folds], icache)
-    G_all, g_all = Gs[0], gs[0]
-    B = identifiable_basis(Gs[0] + Gs[1]) if icache is None else None
     R, held = np.zeros(tau.shape), np.zeros(len(tau), bool)
-    for (test, _), Gx, gx in zip(folds, Gs[2:], gs[2:]):
-        if icache is None:
-            theta = _fold_theta(G_all - Gx, g_all - gx, B)
-        else:
-            theta = np.linalg.lstsq(G_all - Gx, g_all - gx, rcond=None)[0]
+    for (test, _), theta in zip(folds, _fold_thetas(cache, effects, weights, folds, icache)):
         R[test] = (tau[test] - predict_tau(cache, effects, theta, test)) * weights[None, :]
         held |= test
     return R, held
 
 
+def _predicted_joints(cache: "ColumnCache", effects) -> list | None:
+    """Joints whose held-out error needs an output-error prediction: those of the implicit
+    effects (torque in the columns, ``fitting.implicit_mask``); the other joints' errors follow
+    from the Gram products. None when an implicit effect may read other joints' torques
+    (``Effect.own_joint_tau`` False): then every joint is predicted."""
+    n, out = cache.data.n, set()
+    for e in effects:
+        if getattr(e, "needs_tau", False) and not getattr(e, "uses_taud", False):
+            if not getattr(e, "own_joint_tau", False):
+                return None
+            out.update(int(j) for j in e.joints(n))
+    return sorted(out)
+
+
+def heldout_sse(cache: "ColumnCache", effects, weights, folds, icache=None) -> tuple[np.ndarray, int]:
+    """(sse (n,), rows): per joint the weighted held-out squared output error summed over the
+    folds' test rows (disjoint), and the count of those rows: ``np.sum(R**2, axis=0)`` and
+    ``held.sum()`` of :func:`heldout_residuals`, without the (N, n) residual.
+
+    Joint j of an explicit model: w_j^2 sum_k (tt_kj - 2 theta_k^T g_kj + theta_k^T G_kj theta_k)
+    from the per-joint products of the test rows (``ColumnCache.joint_gram``, memoised per
+    block: a candidate adds only its own block's); the joints of implicit effects
+    (:func:`_predicted_joints`) are predicted on the test rows (``predict_tau``'s ``joints``).
+    Equal to the residual path up to round-off (``tests/test_fast_repair.py``)."""
+    w2 = np.asarray(weights, float) ** 2
+    n = cache.data.n
+    thetas = _fold_thetas(cache, effects, weights, folds, icache)
+    tests = [test for test, _ in folds]
+    rows = int(np.sum(np.any(tests, axis=0))) if tests else 0
+    pj = _predicted_joints(cache, effects)
+    if pj is None or len(pj) == n:
+        tau, sse = cache.data.tau, np.zeros(n)
+        for test, theta in zip(tests, thetas):
+            sse += np.sum((tau[test] - predict_tau(cache, effects, theta, test)) ** 2, axis=0)
+        return sse * w2, rows
+    G, g, tt = cache.joint_gram(effects, tests)
+    sse = np.zeros(n)
+    for k, (test, theta) in enumerate(zip(tests, thetas)):
+        err = np.maximum(tt[k] - 2.0 * (g[k] @ theta) + np.einsum("jpq,p,q->j", G[k], theta, theta), 0.0)
+        if pj:
+            pred = predict_tau(cache, effects, theta, test, joints=pj)
+            err[pj] = np.sum((cache.data.tau[test][:, pj] - pred[:, pj]) ** 2, axis=0)
+        sse += err
+    return sse * w2, rows
+
+
 def heldout_error(cache: "ColumnCache", effects, weights, folds, icache=None) -> float:
     """Mean held-out weighted squared output error over ``folds`` = [(test, train)]
-    (:func:`heldout_residuals`)."""
-    R, held = heldout_residuals(cache, effects, weights, folds, icache)
-    return float(np.sum(R[held] ** 2)) / max(int(held.sum()) * R.shape[1], 1)
+    (:func:`heldout_sse`)."""
+    sse, rows = heldout_sse(cache, effects, weights, folds, icache)
+    return float(np.sum(sse)) / max(rows * len(sse), 1)
 
 
 def cv_score(cache: "ColumnCache", effects, weights, folds, icache=None) -> float:
@@ -455,9 +504,10 @@ class _Search:
 
     def fit(self, effects):
         parts = [self.split.search, ~self.split.search]  # all rows (a partition), memoised block Grams
-        if self.icache is None:
-            return self.cache.fit_ls(effects, self.weights, parts=parts, warn=False)
-        return fit_iv_blocks(self.cache, self.icache, effects, self.weights, parts=parts)
+        if self.icache is None:  # coefficients only: no (N, n) residual (a step holds
+            # every candidate's fit: ~1.1 GB of residuals at 99.5k rows x 7 joints)
+            return self.cache.fit_ls(effects, self.weights, parts=parts, warn=False, residual=False)
+        return fit_iv_blocks(self.cache, self.icache, effects, self.weights, parts=parts, residual=False)
 
     def cv(self, effects) -> np.ndarray:
         """Weighted held-out residuals (N, n) of the blocked CV on the search rows."""
@@ -477,8 +527,8 @@ class _Search:
             why = implausible(e, fit.theta[sl], ctx)
             if why:  # checked before the (costlier) cross validation
                 return np.inf, None, np.inf, fit, names, slices, why
-        R = self.cv(effects)
-        per = np.sum(R**2, axis=0) / max(sum(int(t.sum()) for t, _ in self.split.folds), 1)
+        sse, _ = heldout_sse(self.cache, effects, self.weights, self.split.folds, self.icache)
+        per = sse / max(sum(int(t.sum()) for t, _ in self.split.folds), 1)
         return float(np.mean(per)), per, _LazyBIC(self, list(effects), fit.theta, fit.rank), fit, names, slices, ""
 
     def explained(self, effects, fit) -> np.ndarray:
@@ -502,7 +552,7 @@ class _LazyBIC:
         if self._value is None:
             search, effects, theta, rank = self._args
             r = (search.cache.data.tau - predict_tau(search.cache, effects, theta)) * search.weights[None, :]
-            self._value, self._args = bic(float(np.sum(r**2)), search.rows, rank, search.n_eff_rows), None
+            self._value, self._args = float(bic(float(np.sum(r**2)), search.rows, rank, search.n_eff_rows)), None
         return self._value
 
 
@@ -624,7 +674,7 @@ def _trial(search: _Search, cur: dict, e) -> dict:
         return dict(out, bic=b, why=f"inadmissible fit: {why}")
     j = _target(e)
     before, after = (cur["per"][j], per[j]) if j is not None else (cur["score"], sc)
-    return dict(out, score=sc, per=per, bic=b, fit=_without_residual(fit), joint_gain=float((before - after) / before))
+    return dict(out, score=sc, per=per, bic=b, fit=fit, joint_gain=float((before - after) / before))
 
 
 def _shared_first(search: _Search, cur: dict, trials: list) -> list:
@@ -658,15 +708,6 @@ def _shared_first(search: _Search, cur: dict, trials: list) -> list:
             out.insert(i, out.pop(i_s))
             break
     return out
-
-
-def _without_residual(fit):
-    """The trial's fit without its (N, n) residual (data flow only: a step holds every
-    candidate's trial, ~1.1 GB of residuals at 99.5k rows x 7 joints; later rules read the
-    coefficients, not the residual)."""
-    import dataclasses
-
-    return dataclasses.replace(fit, residual=None)
 
 
 def _step(search: _Search, cur: dict, trials: list, baseline_score: float, c_base: float, done: int):
@@ -831,7 +872,7 @@ def _recheck(search: _Search, chosen: list, base_confirm) -> tuple[list, list]:
 
 __all__ = ["ColumnCache", "forward_select", "fit_model", "predict", "predict_tau", "implausible", "blocked_folds",
            "confirm_rows", "selection_split", "gap_samples", "filter_settling_time", "correlation_time",
-           "heldout_error", "heldout_residuals", "identifiable_basis", "white_noise_level", "cv_score", "effect_label", "identifiability", "bic", "Step", "SelectionResult", "Split",
+           "heldout_error", "heldout_residuals", "heldout_sse", "identifiable_basis", "white_noise_level", "cv_score", "effect_label", "identifiability", "bic", "Step", "SelectionResult", "Split",
            "Blocks", "validation_blocks"]
 
 
