@@ -507,13 +507,15 @@ def predict_tau(cache: "ColumnCache", effects, theta, rows=None, iterations: int
         return m
     d = cache.data
     q, qd, qdd = d.q[rows], d.qd[rows], d.qdd[rows]
+    cols = slice(None) if joints is None else list(joints)  # the columns iterated
+    keep = None if cache.keep is None else cache.keep[rows][:, cols]
     tau_hat = m.copy()
     for _ in range(iterations):
-        new = m + sum(implicit_term(e, q, qd, qdd, tau_hat, theta[sl]) for e, sl in imp)
-        if cache.keep is not None:
-            new = new * cache.keep[rows]
-        done = np.max(np.abs(new - tau_hat)) < 1e-10
-        tau_hat = new
+        new = m[:, cols] + sum(implicit_term(e, q, qd, qdd, tau_hat, theta[sl])[:, cols] for e, sl in imp)
+        if keep is not None:
+            new *= keep
+        done = np.max(np.abs(new - tau_hat[:, cols]), initial=0.0) < 1e-10
+        tau_hat[:, cols] = new
         if done:
             break
     return tau_hat
