@@ -469,10 +469,10 @@ def test_span_basis_in_row_blocks_equals_lstsq_on_filtered_rigid_body_columns(re
     basis.BLOCK_ROWS = 128  # several blocks, the last one short
     SpanBasis.__init__(basis, Yb)
     inside = Yb @ np.random.default_rng(5).normal(size=(p0, 2))
-    for e in _candidates()[:5]:
-        Phi = np.concatenate([cache.effect(e)[0], inside], axis=2)
-        B = Phi.reshape(-1, Phi.shape[2])
-        d0 = np.linalg.lstsq(A, B, rcond=None)[0]
-        d, rel = basis.direction(Phi)
-        assert _close(d, d0, 1e-7), e
-        assert rel == pytest.approx(np.linalg.norm(B - A @ d0) / np.linalg.norm(B), rel=1e-7, abs=1e-12)
+    for e in _candidates()[:5]:  # single-joint effects: alone (zero on the other joint) and with in-span columns
+        for Phi in (cache.effect(e)[0], np.concatenate([cache.effect(e)[0], inside], axis=2)):
+            B = Phi.reshape(-1, Phi.shape[2])
+            d0 = np.linalg.lstsq(A, B, rcond=None)[0]
+            d, rel = basis.direction(Phi)
+            assert _close(d, d0, 1e-7), e
+            assert rel == pytest.approx(np.linalg.norm(B - A @ d0) / np.linalg.norm(B), rel=1e-7, abs=1e-12)

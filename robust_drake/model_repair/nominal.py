@@ -43,6 +43,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import stats
 
+from robust_drake.identification.fitting import nonzero_joints
 from robust_drake.model_repair.selection import effect_label, implausible, predict_tau
 
 #: relative trust in the URDF's base parameters (5 % of each parameter's scale)
@@ -99,9 +100,18 @@ class SpanBasis:
         return self.Vt.T @ ((self.Vt @ g) / (self.s ** 2)[:, None])
 
     def _at(self, B, d=None):
-        """Yb^T (B - Yb d) (d None: Yb^T B) and ||B - Yb d||^2, by row blocks."""
+        """Yb^T (B - Yb d) (d None: Yb^T B) and ||B - Yb d||^2, by row blocks (d None and B zero on
+        all joints but some, a single-joint effect's columns: the products of those joints only)."""
         p0, k = self.Yb.shape[2], B.shape[2]
         g, ss = np.zeros((p0, k)), 0.0
+        joints = nonzero_joints(B) if d is None else None
+        if joints is not None:
+            for j in joints:
+                for r in self._runs():
+                    Br = B[r, j, :]
+                    g += self.Yb[r, j, :].T @ Br
+                    ss += float(np.sum(Br * Br))
+            return g, ss
         for r in self._runs():
             A, Br = self.Yb[r].reshape(-1, p0), B[r].reshape(-1, k)
             res = Br if d is None else Br - A @ d
